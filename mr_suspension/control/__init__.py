@@ -1,0 +1,1 @@
+"""Semi-active control laws (pure numerics, shared by the simulator and the controller node)."""

@@ -1,0 +1,405 @@
+"""MR damper force laws: parameters, numba step functions, inverse maps and the work diagram.
+
+Sign convention (all laws): stroke ``x = z_s - z_u`` (+ = extension/rebound), stroke rate
+``v = dx/dt``, field current ``i`` [A] (after driver and fluid dynamics). The damper force ``F``
+is positive when it resists extension, so the dissipated power is ``F * v``.
+
+Every law has the same jitted signature ``force(p, s, x, v, i, dt) -> (F, dF/dv)`` where ``p``
+is the law's float64 parameter array and ``s`` its (possibly empty) state array, updated in
+place. ``dF/dv`` is the local tangent damping, used by the plant's linearly implicit step.
+"""
+
+from dataclasses import asdict, dataclass, fields
+import math
+
+from numba import njit
+import numpy as np
+
+from mr_suspension.core import extended
+from mr_suspension.core.validation import build, check_finite, check_nonneg, check_positive
+
+LAW_LINEAR = 0
+LAW_BINGHAM = 1
+LAW_TANH = 2
+LAW_TANH_MAXVEL = 3
+LAW_MECHANICAL = 4
+LAW_BOUC_WEN = 5
+LAW_EXTENDED = 6
+
+MAXVEL_WINDOW_MAX = 4096
+
+
+class _Params:
+    """Mixin: array conversion and dict round trip for the frozen parameter dataclasses."""
+
+    def to_array(self):
+        """Return the parameters as a float64 array in field order (the jitted law's ``p``)."""
+        return np.array([float(getattr(self, f.name)) for f in fields(self)], dtype=np.float64)
+
+    def to_dict(self):
+        """Return the parameters as a plain dict (YAML/JSON friendly)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data):
+        """Build from a mapping; unknown keys raise ValueError."""
+        return build(cls, dict(data))
+
+
+@dataclass(frozen=True)
+class LinearDamperParams(_Params):
+    """Linear viscous damper ``F = c v + F0`` (passive reference, seed 001 eq. 2)."""
+
+    c: float = 1000.0
+    f0: float = 0.0
+
+    law = 'linear'
+    law_id = LAW_LINEAR
+    n_state = 0
+
+    def __post_init__(self):
+        check_nonneg('LinearDamperParams', c=self.c)
+        check_finite('LinearDamperParams', f0=self.f0)
+
+
+@dataclass(frozen=True)
+class BinghamParams(_Params):
+    """Smooth Bingham model ``F = F0 + c(i) v + Fc(i) tanh(v / v_y)`` (seed 003, eq. 5.2).
+
+    ``c(i) = c0 + c1 i`` and ``Fc(i) = fc0 + fc1 i``; ``v_y`` smooths ``sgn`` (v_y -> 0 gives
+    the Coulomb element of Stanway's model). Seed 003, Table 2 (1.5 V): Fc = 670 N,
+    C0 = 50 N s/cm, F0 = -95 N.
+    """
+
+    f0: float = -95.0
+    c0: float = 5000.0
+    c1: float = 0.0
+    fc0: float = 670.0
+    fc1: float = 0.0
+    v_y: float = 0.01
+
+    law = 'bingham'
+    law_id = LAW_BINGHAM
+    n_state = 0
+
+    def __post_init__(self):
+        check_finite('BinghamParams', f0=self.f0)
+        check_nonneg('BinghamParams', c0=self.c0, c1=self.c1, fc0=self.fc0, fc1=self.fc1)
+        check_positive('BinghamParams', v_y=self.v_y)
+
+
+@dataclass(frozen=True)
+class TanhParams(_Params):
+    """Current-driven tanh model ``F = y_MR I tanh(c_MR v + k_MR x) + c_p v + k_p x`` (seed 002)."""
+
+    y_mr: float = 900.0
+    c_mr: float = 30.0
+    k_mr: float = 20.0
+    c_p: float = 1200.0
+    k_p: float = 1500.0
+
+    law = 'tanh'
+    law_id = LAW_TANH
+    n_state = 0
+
+    def __post_init__(self):
+        check_nonneg('TanhParams', y_mr=self.y_mr, c_p=self.c_p)
+        check_positive('TanhParams', c_mr=self.c_mr)
+        check_finite('TanhParams', k_mr=self.k_mr, k_p=self.k_p)
+
+
+@dataclass(frozen=True)
+class TanhMaxVelParams(_Params):
+    """Max-deflection-velocity variant (seed 002).
+
+    ``F = I v c_MR / (max_{i-k..i} |v| + eps) + c_p v + k_p x``: the post-yield damping varies
+    with the peak stroke rate over the last ``window`` seconds.
+    """
+
+    c_mr: float = 900.0
+    eps: float = 0.02
+    c_p: float = 1200.0
+    k_p: float = 1500.0
+    window: float = 0.25
+
+    law = 'tanh_maxvel'
+    law_id = LAW_TANH_MAXVEL
+    n_state = MAXVEL_WINDOW_MAX + 3
+
+    def __post_init__(self):
+        check_nonneg('TanhMaxVelParams', c_mr=self.c_mr, c_p=self.c_p)
+        check_positive('TanhMaxVelParams', eps=self.eps, window=self.window)
+        check_finite('TanhMaxVelParams', k_p=self.k_p)
+
+
+@dataclass(frozen=True)
+class MechanicalParams(_Params):
+    """Seed 000 mechanical model (Fig. 7): damping d(xi_dot, i) in series with k1, parallel k2.
+
+    ``F = k1 (x - xi) + F_acc(x)`` with ``k1 (x - xi) = d(xi_dot, i)``,
+    ``d(u, i) = (c0 + c1 i) u + (fy0 + fy1 i) tanh(u / v_y)`` (Fig. 8 is a smooth Bingham-like
+    curve) and the accumulator ``F_acc(x) = -(a2 x^2 + a1 x + a0)``: Table 3 gives
+    ``k2 = 66736 x^2 - 165 x + 162``; its constant term is the static preload in N pushing the
+    rod out (hence the minus sign in our tension-positive convention). k1 = 2.505e6 N/m.
+    """
+
+    k1: float = 2.505e6
+    a2: float = 66736.0
+    a1: float = -165.0
+    a0: float = 162.0
+    c0: float = 800.0
+    c1: float = 2500.0
+    fy0: float = 60.0
+    fy1: float = 900.0
+    v_y: float = 0.02
+
+    law = 'mechanical'
+    law_id = LAW_MECHANICAL
+    n_state = 1
+
+    def __post_init__(self):
+        check_positive('MechanicalParams', k1=self.k1, v_y=self.v_y)
+        check_finite('MechanicalParams', a2=self.a2, a1=self.a1, a0=self.a0)
+        check_nonneg('MechanicalParams', c0=self.c0, c1=self.c1, fy0=self.fy0, fy1=self.fy1)
+
+
+@dataclass(frozen=True)
+class BoucWenParams(_Params):
+    """Modified Bouc-Wen model (Spencer et al. 1997), SI units, current ``i`` as the command.
+
+    ``F = c1 y_dot + k1 (x - x0)``,
+    ``z_dot = -gamma |x_dot - y_dot| z |z|^(n-1) - beta (x_dot - y_dot) |z|^n + A (x_dot - y_dot)``,
+    ``y_dot = (alpha z + c0 x_dot + k0 (x - y)) / (c0 + c1)``, with ``alpha, c0, c1`` affine in
+    the current. Defaults are Spencer's identified values (per volt, read here per ampere).
+    """
+
+    alpha_a: float = 14000.0
+    alpha_b: float = 69500.0
+    c0_a: float = 2100.0
+    c0_b: float = 350.0
+    c1_a: float = 28300.0
+    c1_b: float = 295.0
+    k0: float = 4690.0
+    k1: float = 500.0
+    x0: float = 0.0
+    gamma: float = 3.63e6
+    beta: float = 3.63e6
+    a_bw: float = 301.0
+    n_substeps: float = 10.0
+
+    law = 'bouc_wen'
+    law_id = LAW_BOUC_WEN
+    n_state = 2
+
+    def __post_init__(self):
+        check_nonneg('BoucWenParams', alpha_a=self.alpha_a, alpha_b=self.alpha_b,
+                     c0_b=self.c0_b, c1_b=self.c1_b, k0=self.k0, k1=self.k1,
+                     gamma=self.gamma, beta=self.beta)
+        check_positive('BoucWenParams', c0_a=self.c0_a, c1_a=self.c1_a, a_bw=self.a_bw,
+                       n_substeps=self.n_substeps)
+        check_finite('BoucWenParams', x0=self.x0)
+
+
+LAWS = {
+    'linear': LinearDamperParams,
+    'bingham': BinghamParams,
+    'tanh': TanhParams,
+    'tanh_maxvel': TanhMaxVelParams,
+    'mechanical': MechanicalParams,
+    'bouc_wen': BoucWenParams,
+}
+
+
+def damper_from_dict(data):
+    """Build damper parameters from ``{'law': name, ...parameters}`` (YAML/JSON)."""
+    data = dict(data)
+    law = data.pop('law', None)
+    if law == 'extended':
+        return extended.ExtendedDamperParams.from_dict(data)
+    if law not in LAWS:
+        raise ValueError(f'unknown damper law {law!r}; known: {sorted(LAWS) + ["extended"]}')
+    return LAWS[law].from_dict(data)
+
+
+def law_id_of(params):
+    """Return the integer law id used by the jitted dispatcher."""
+    if isinstance(params, extended.ExtendedDamperParams):
+        return LAW_EXTENDED
+    return params.law_id
+
+
+def n_state_of(params):
+    """Return the length of the law's state vector (at least 1 so arrays are never empty)."""
+    if isinstance(params, extended.ExtendedDamperParams):
+        return max(1, extended.EXT_NSTATE)
+    return max(1, params.n_state)
+
+
+@njit(cache=True)
+def linear_force(p, x, v):
+    """Linear viscous damper ``F = c v + F0``."""
+    return p[0] * v + p[1], p[0]
+
+
+@njit(cache=True)
+def bingham_force(p, v, i):
+    """Smooth Bingham ``F = F0 + (c0 + c1 i) v + (fc0 + fc1 i) tanh(v / v_y)`` (seed 003)."""
+    c = p[1] + p[2] * i
+    fc = p[3] + p[4] * i
+    th = math.tanh(v / p[5])
+    return p[0] + c * v + fc * th, c + fc * (1.0 - th * th) / p[5]
+
+
+@njit(cache=True)
+def tanh_force(p, x, v, i):
+    """Seed 002 ``F = y_MR I tanh(c_MR v + k_MR x) + c_p v + k_p x``."""
+    th = math.tanh(p[1] * v + p[2] * x)
+    return p[0] * i * th + p[3] * v + p[4] * x, p[0] * i * (1.0 - th * th) * p[1] + p[3]
+
+
+@njit(cache=True)
+def maxvel_force(p, s, x, v, i, dt):
+    """Seed 002 max-deflection-velocity model; ``s`` = [count, head, peak, |v| ring buffer]."""
+    n = int(p[4] / dt + 0.5)
+    if n < 1:
+        n = 1
+    if n > MAXVEL_WINDOW_MAX:
+        n = MAXVEL_WINDOW_MAX
+    count = int(s[0])
+    head = int(s[1])
+    av = abs(v)
+    expired = s[3 + head] if count >= n else 0.0
+    s[3 + head] = av
+    head = (head + 1) % n
+    if count < n:
+        count += 1
+    if av >= s[2]:
+        s[2] = av
+    elif expired >= s[2]:
+        m = 0.0
+        for k in range(count):
+            if s[3 + k] > m:
+                m = s[3 + k]
+        s[2] = m
+    s[0] = count
+    s[1] = head
+    g = p[0] * i / (s[2] + p[1])
+    return g * v + p[2] * v + p[3] * x, g + p[2]
+
+
+@njit(cache=True)
+def _mech_d(p, u, i):
+    c = p[4] + p[5] * i
+    fy = p[6] + p[7] * i
+    th = math.tanh(u / p[8])
+    return c * u + fy * th, c + fy * (1.0 - th * th) / p[8]
+
+
+@njit(cache=True)
+def mechanical_force(p, s, x, v, i, dt):
+    """Seed 000 series model; implicit Euler on the internal coordinate ``xi`` (s[0]).
+
+    Solves ``d(u, i) + k1 dt u = k1 (x - xi_n)`` for ``u = xi_dot`` by safeguarded Newton
+    (the left side is monotone in ``u``), then ``xi += dt u``. Tangent: ``d'`` in series with
+    ``k1 dt``.
+    """
+    k1 = p[0]
+    rhs = k1 * (x - s[0])
+    u = v
+    for _ in range(30):
+        d, dd = _mech_d(p, u, i)
+        g = d + k1 * dt * u - rhs
+        step = g / (dd + k1 * dt)
+        u -= step
+        if abs(step) < 1e-12 * (1.0 + abs(u)):
+            break
+    d, dd = _mech_d(p, u, i)
+    s[0] += dt * u
+    f_acc = -(p[1] * x * x + p[2] * x + p[3])
+    tangent = dd * k1 * dt / (dd + k1 * dt)
+    return d + f_acc, tangent
+
+
+@njit(cache=True)
+def bouc_wen_force(p, s, x, v, i, dt):
+    """Spencer modified Bouc-Wen, n = 2; ``s`` = [z, y]; z by implicit Euler in substeps."""
+    alpha = p[0] + p[1] * i
+    c0 = p[2] + p[3] * i
+    c1 = p[4] + p[5] * i
+    k0 = p[6]
+    nsub = int(p[12])
+    h = dt / nsub
+    z = s[0]
+    y = s[1]
+    ydot = 0.0
+    for _ in range(nsub):
+        ydot = (alpha * z + c0 * v + k0 * (x - y)) / (c0 + c1)
+        w = v - ydot
+        # z_new = z + h w (A - (gamma sgn(w z_new) + beta) |z_new| z_new): solve the quadratic
+        # for the branch sign(z_new) = sign(w) (loading) or the opposite (unloading).
+        zn = z
+        for _k in range(8):
+            sg = 1.0 if w * zn >= 0.0 else -1.0
+            a = h * w * (p[9] * sg + p[10])
+            f = zn - z - h * w * p[11] + a * abs(zn) * zn
+            df = 1.0 + 2.0 * a * abs(zn)
+            zn -= f / df
+        z = zn
+        y += h * ydot
+    s[0] = z
+    s[1] = y
+    force = c1 * ydot + p[7] * (x - p[8])
+    return force, c1 * c0 / (c0 + c1)
+
+
+@njit(cache=True)
+def damper_force(law, p, s, x, v, i, dt):
+    """Dispatch to the force law ``law``; returns ``(F, dF/dv)`` and updates ``s`` in place."""
+    if law == LAW_BINGHAM:
+        return bingham_force(p, v, i)
+    if law == LAW_TANH:
+        return tanh_force(p, x, v, i)
+    if law == LAW_TANH_MAXVEL:
+        return maxvel_force(p, s, x, v, i, dt)
+    if law == LAW_MECHANICAL:
+        return mechanical_force(p, s, x, v, i, dt)
+    if law == LAW_BOUC_WEN:
+        return bouc_wen_force(p, s, x, v, i, dt)
+    if law == LAW_EXTENDED:
+        return extended.extended_force(p, s, x, v, i, dt)
+    return linear_force(p, x, v)
+
+
+@njit(cache=True)
+def force_series(law, p, x, v, i, dt):
+    """Evaluate a law along a record (arrays ``x, v, i``) from a zero state; returns F."""
+    n = x.shape[0]
+    s = np.zeros(MAXVEL_WINDOW_MAX + 3 if law == LAW_TANH_MAXVEL else 64)
+    out = np.empty(n)
+    for k in range(n):
+        out[k] = damper_force(law, p, s, x[k], v[k], i[k], dt)[0]
+    return out
+
+
+def work_diagram_damping(x, f, freq, amplitude=None):
+    """Equivalent damping from a work diagram, ``C_eq = W / (pi omega X^2)`` (seed 001, eq. 1).
+
+    ``W`` is the loop area of force over displacement (shoelace formula on whole cycles,
+    sign-independent), ``omega = 2 pi freq``, ``X`` the displacement amplitude (half the
+    peak-to-peak travel unless given).
+    """
+    x = np.asarray(x, dtype=float)
+    f = np.asarray(f, dtype=float)
+    if x.shape != f.shape or x.size < 8:
+        raise ValueError('work diagram needs equal-length displacement and force (>= 8 samples)')
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(f))):
+        raise ValueError('work diagram: displacement and force must be finite')
+    check_positive('work_diagram_damping', freq=freq)
+    if amplitude is None:
+        amplitude = 0.5 * (x.max() - x.min())
+    check_positive('work_diagram_damping', amplitude=amplitude)
+    area = abs(np.sum(f * np.roll(x, -1) - x * np.roll(f, -1))) * 0.5
+    # np.roll closes the polygon; the number of cycles follows from the travel.
+    cycles = np.sum(np.abs(np.diff(x))) / (4.0 * amplitude)
+    cycles = max(1.0, round(cycles))
+    return area / cycles / (math.pi * 2.0 * math.pi * freq * amplitude ** 2)

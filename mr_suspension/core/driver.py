@@ -1,0 +1,160 @@
+"""Current driver (LORD Wonder Box RD-3002-3) and MR-fluid magnetisation dynamics (seed 000 §5).
+
+Chain (seed 000, Fig. 9 and §5.3): command current -> driver input voltage (the ECU inverts the
+nominal static map) -> static voltage-to-current map -> first-order lag with separate rise and
+fall time constants -> dead time -> coil current -> fluid magnetisation lag (fast on rising,
+slow on falling current) -> field current that the force law sees.
+"""
+
+from dataclasses import asdict, dataclass, fields
+import math
+
+from numba import njit
+import numpy as np
+
+from mr_suspension.core.validation import build, check_nonneg, check_positive
+
+DEAD_TIME_BUFFER = 512
+# Driver state layout: [lag output, fluid output, ring head, ring buffer (DEAD_TIME_BUFFER)].
+DRV_LAG, DRV_FLUID, DRV_HEAD, DRV_BUF = 0, 1, 2, 3
+DRIVER_STATE_SIZE = DRV_BUF + DEAD_TIME_BUFFER
+
+
+@dataclass(frozen=True)
+class DriverParams:
+    """Wonder Box and fluid parameters (SI). Seed 000 §5.2–5.3 and Tables 4–5.
+
+    Static map: ``i = 0`` for ``V <= v_dead``, else ``i = i_max s / (1 + s^knee)^(1/knee)`` with
+    ``s = gain (V - v_dead) / i_max``: nearly linear beyond the ~0.5 V dead zone, saturating near
+    ``i_max`` (2 A max, Table 2). Lag ``tau_rise``/``tau_fall`` and ``dead_time`` are the Wonder
+    Box; ``fluid_tau_rise``/``fluid_tau_fall`` the fluid (about 16 ms falling, hardly any rising;
+    about 25 ms falling in total). A time constant of 0 means no lag.
+    """
+
+    v_dead: float = 0.5
+    gain: float = 0.5
+    i_max: float = 2.0
+    knee: float = 6.0
+    v_max: float = 5.0
+    tau_rise: float = 0.007
+    tau_fall: float = 0.004
+    dead_time: float = 0.003
+    fluid_tau_rise: float = 0.0
+    fluid_tau_fall: float = 0.016
+
+    def __post_init__(self):
+        check_nonneg('DriverParams', v_dead=self.v_dead, tau_rise=self.tau_rise,
+                     tau_fall=self.tau_fall, dead_time=self.dead_time,
+                     fluid_tau_rise=self.fluid_tau_rise, fluid_tau_fall=self.fluid_tau_fall)
+        check_positive('DriverParams', gain=self.gain, i_max=self.i_max, knee=self.knee,
+                       v_max=self.v_max)
+        if self.v_max <= self.v_dead:
+            raise ValueError('DriverParams: v_max must exceed v_dead')
+        if self.dead_time > 0.25:
+            raise ValueError('DriverParams: dead_time must be <= 0.25 s')
+
+    def to_array(self):
+        """Return the float64 parameter array used by the jitted step."""
+        return np.array([float(getattr(self, f.name)) for f in fields(self)], dtype=np.float64)
+
+    def to_dict(self):
+        """Return a plain dict."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data):
+        """Build from a mapping; unknown keys raise ValueError."""
+        return build(cls, dict(data))
+
+    @property
+    def i_range(self):
+        """Largest current the driver can deliver at ``v_max`` [A]."""
+        return float(static_current(self.to_array(), self.v_max))
+
+
+@njit(cache=True)
+def static_current(p, volt):
+    """Static Wonder Box map (seed 000, Fig. 9 first block): voltage [V] -> current [A]."""
+    if not volt > p[0]:
+        return 0.0
+    if volt > p[4]:
+        volt = p[4]
+    s = p[1] * (volt - p[0]) / p[2]
+    return p[2] * s / (1.0 + s ** p[3]) ** (1.0 / p[3])
+
+
+@njit(cache=True)
+def command_voltage(p, i_cmd):
+    """Inverse static map: the voltage the ECU applies for a current command (clamped)."""
+    if not i_cmd > 0.0:
+        return 0.0
+    r = i_cmd / p[2]
+    i_top = static_current(p, p[4]) / p[2]
+    if r >= i_top:
+        return p[4]
+    s = r / (1.0 - r ** p[3]) ** (1.0 / p[3])
+    return p[0] + s * p[2] / p[1]
+
+
+@njit(cache=True)
+def _alpha(tau, dt):
+    if tau <= 0.0:
+        return 1.0
+    return 1.0 - math.exp(-dt / tau)
+
+
+@njit(cache=True)
+def driver_step_voltage(p, s, volt, dt):
+    """Advance driver and fluid one step from an input voltage; returns (coil, field) [A].
+
+    ``y += (1 - exp(-dt/tau)) (u - y)`` with ``tau = tau_rise`` if ``u > y`` else ``tau_fall``
+    (exact for a piecewise-constant input), then the dead time as a ring buffer of
+    ``round(dead_time / dt)`` samples, then the fluid lag with its own rise/fall constants.
+    """
+    u = static_current(p, volt)
+    y = s[DRV_LAG]
+    tau = p[5] if u > y else p[6]
+    y += _alpha(tau, dt) * (u - y)
+    s[DRV_LAG] = y
+    nd = int(p[7] / dt + 0.5)
+    if nd > DEAD_TIME_BUFFER:
+        nd = DEAD_TIME_BUFFER
+    if nd > 0:
+        head = int(s[DRV_HEAD])
+        coil = s[DRV_BUF + head]
+        s[DRV_BUF + head] = y
+        s[DRV_HEAD] = (head + 1) % nd
+    else:
+        coil = y
+    f = s[DRV_FLUID]
+    tau = p[8] if coil > f else p[9]
+    f += _alpha(tau, dt) * (coil - f)
+    s[DRV_FLUID] = f
+    return coil, f
+
+
+@njit(cache=True)
+def driver_step(p, s, i_cmd, dt):
+    """Advance driver and fluid one step from a current command [A]; returns (coil, field)."""
+    return driver_step_voltage(p, s, command_voltage(p, i_cmd), dt)
+
+
+def driver_state(params=None, current=0.0):
+    """Return a driver state array at rest with all stages at ``current`` [A]."""
+    s = np.zeros(DRIVER_STATE_SIZE)
+    s[DRV_LAG] = current
+    s[DRV_FLUID] = current
+    s[DRV_BUF:] = current
+    return s
+
+
+@njit(cache=True)
+def driver_series(p, i_cmd, dt):
+    """Run the driver over a command array from rest; returns (coil, field) arrays."""
+    s = np.zeros(DRIVER_STATE_SIZE)
+    n = i_cmd.shape[0]
+    coil = np.empty(n)
+    field = np.empty(n)
+    for k in range(n):
+        coil[k], field[k] = driver_step(p, s, i_cmd[k], dt)
+    return coil, field

@@ -1,0 +1,222 @@
+"""Extended MR-damper force law: smooth Bingham plus the force-law effects of the diagnosis.
+
+Force (stroke ``x``, + = extension; stroke rate ``v``; field current ``i``)::
+
+    F   = F0 + kg1 x + kg2 x^2 + F_d(u)                   (gas spring k2 in parallel, seed 000)
+    F_d = M(u) [c(i) u + Fy(i) y(u)]                      (damping element, seed 003 eq. 5.2)
+    c(i) = c0 + c1 i,  Fy(i) = fy0 + fy1 g(i),  g(i) = i_s tanh(i / i_s)   (saturation)
+    M(u) = (1 - kappa E) (1 + rho tanh(u / v_y))          (thermal fade, direction asymmetry)
+    y(u) = tanh(u / v_y), or the Dahl state ``dz/dx_d = (1 - z sgn u) / x_h`` (hysteresis)
+    dF_d/dt = k1 (v - u)                                  (series stiffness k1, seed 000 Fig. 7)
+    dE/dt = F_d u - E / tau_th                            (stored heat from dissipated energy)
+
+``u`` is the damping-element velocity: ``u = v`` without series stiffness, else the root of
+the backward-Euler balance ``F_d(u) = F_d,prev + k1 dt (v - u)``. Every effect is off at its
+neutral value: ``i_s = 0``, ``x_h = 0``, ``k1 = 0``, ``kg1 = kg2 = 0``, ``kappa = 0``,
+``rho = 0``. The Dahl step is exact for a constant ``u`` over the step:
+``z+ = sgn u + (z - sgn u) exp(-|u| dt / x_h)``.
+
+The state vector ``s`` (length ``EXT_NSTATE``, all zeros = at rest) holds
+``[z, F_d, E, u, y, M, g]``; the last four are the step's intermediates, which the
+identification reads to build its regressors, so fitting and simulation share this one function.
+Current dynamics (dead time, lags) are not here: they belong to the driver (core.driver).
+"""
+
+from dataclasses import asdict, dataclass, fields
+import math
+
+from numba import njit
+import numpy as np
+
+from mr_suspension.core.validation import build, check_finite, check_nonneg, check_positive
+
+EXT_NSTATE = 7
+S_Z, S_FD, S_E, S_U, S_Y, S_M, S_G = range(7)
+(P_F0, P_C0, P_C1, P_FY0, P_FY1, P_VY, P_ISAT, P_XH, P_K1, P_KG1, P_KG2, P_KAPPA, P_TAUTH,
+ P_RHO) = range(14)
+RHO_MAX = 0.5
+
+
+@dataclass(frozen=True)
+class ExtendedDamperParams:
+    """Parameters of the extended law (SI); the field order is the jitted array order.
+
+    ``f0`` [N], ``c0`` [N s/m], ``c1`` [N s/(m A)], ``fy0`` [N], ``fy1`` [N/A], ``v_y`` [m/s]
+    smooth-Bingham baseline; ``i_sat`` [A] yield saturation (0 = off); ``x_h`` [m] Dahl
+    pre-yield length (0 = off, smooth tanh); ``k_series`` [N/m] series stiffness (0 = rigid);
+    ``k_gas1`` [N/m], ``k_gas2`` [N/m^2] gas spring; ``kappa`` [1/J] fade per stored heat
+    (0 = off), ``tau_thermal`` [s] cooling time constant; ``rho`` [-] rebound/compression
+    asymmetry, ``|rho| <= 0.5``.
+    """
+
+    f0: float = 0.0
+    c0: float = 1000.0
+    c1: float = 0.0
+    fy0: float = 100.0
+    fy1: float = 500.0
+    v_y: float = 0.01
+    i_sat: float = 0.0
+    x_h: float = 0.0
+    k_series: float = 0.0
+    k_gas1: float = 0.0
+    k_gas2: float = 0.0
+    kappa: float = 0.0
+    tau_thermal: float = 600.0
+    rho: float = 0.0
+
+    law = 'extended'
+
+    def __post_init__(self):
+        check_finite('ExtendedDamperParams', f0=self.f0, c0=self.c0, c1=self.c1, fy0=self.fy0,
+                     fy1=self.fy1, k_gas1=self.k_gas1, k_gas2=self.k_gas2, rho=self.rho)
+        check_positive('ExtendedDamperParams', v_y=self.v_y, tau_thermal=self.tau_thermal)
+        check_nonneg('ExtendedDamperParams', i_sat=self.i_sat, x_h=self.x_h,
+                     k_series=self.k_series, kappa=self.kappa)
+        if abs(self.rho) > RHO_MAX:
+            raise ValueError(f'ExtendedDamperParams: |rho| must be <= {RHO_MAX}, got {self.rho}')
+
+    def to_array(self):
+        """Return the float64 parameter array ``p`` of ``extended_force``."""
+        return np.array([float(getattr(self, f.name)) for f in fields(self)], dtype=np.float64)
+
+    def to_dict(self):
+        """Return the parameters as a plain dict (JSON/YAML friendly)."""
+        return {k: float(v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data):
+        """Build from a mapping (a ``law`` key is ignored); unknown keys raise ValueError."""
+        data = {k: float(v) for k, v in dict(data).items() if k != 'law'}
+        return build(cls, data)
+
+    @classmethod
+    def from_array(cls, p):
+        """Build from a parameter array in field order."""
+        names = [f.name for f in fields(cls)]
+        if len(p) != len(names):
+            raise ValueError(f'ExtendedDamperParams: expected {len(names)} values, got {len(p)}')
+        return cls(**{n: float(v) for n, v in zip(names, p)})
+
+
+@njit(cache=True)
+def _element(p, s, u, i, dt):
+    """Damping-element force ``F_d(u)`` and ``dF_d/du`` with the intermediates (y, M, g)."""
+    vy = p[P_VY]
+    isat = p[P_ISAT]
+    g = isat * math.tanh(i / isat) if isat > 0.0 else i
+    c = p[P_C0] + p[P_C1] * i
+    fy = p[P_FY0] + p[P_FY1] * g
+    xh = p[P_XH]
+    if xh > 0.0:
+        z = s[S_Z]
+        a = dt / xh
+        if u > 0.0:
+            e = math.exp(-a * u)
+            y = 1.0 + (z - 1.0) * e
+            dy = a * (1.0 - z) * e
+        elif u < 0.0:
+            e = math.exp(a * u)
+            y = -1.0 + (z + 1.0) * e
+            dy = a * (z + 1.0) * e
+        else:
+            y = z
+            dy = a * (1.0 - abs(z))
+    else:
+        y = math.tanh(u / vy)
+        dy = (1.0 - y * y) / vy
+    mth = 1.0 - p[P_KAPPA] * s[S_E]
+    if mth < 0.05:
+        mth = 0.05
+    t = math.tanh(u / vy)
+    m = mth * (1.0 + p[P_RHO] * t)
+    dm = mth * p[P_RHO] * (1.0 - t * t) / vy
+    core = c * u + fy * y
+    return m * core, dm * core + m * (c + fy * dy), y, m, g
+
+
+@njit(cache=True)
+def extended_force(p, s, x, v, i, dt):
+    """Advance one step; return ``(F, dF/dv)`` (equations in the module docstring).
+
+    ``p`` parameter array (``ExtendedDamperParams.to_array()``), ``s`` state (updated in place),
+    ``x`` stroke [m], ``v`` stroke rate [m/s], ``i`` field current [A], ``dt`` step [s].
+    """
+    k1 = p[P_K1]
+    if k1 > 0.0:
+        kdt = k1 * dt
+        fprev = s[S_FD]
+        # Monotone root of h(u) = F_d(u) - F_prev - k1 dt (v - u): bracket, then safeguarded
+        # Newton (h' = F_d' + k1 dt > 0).
+        u = s[S_U]
+        h, dh, y, m, g = _element(p, s, u, i, dt)
+        h = h - fprev - kdt * (v - u)
+        step = abs(v - u) + p[P_VY]
+        lo = u
+        hi = u
+        if h > 0.0:
+            for _ in range(60):
+                lo = lo - step
+                step *= 2.0
+                hl = _element(p, s, lo, i, dt)[0] - fprev - kdt * (v - lo)
+                if hl <= 0.0:
+                    break
+        else:
+            for _ in range(60):
+                hi = hi + step
+                step *= 2.0
+                hh = _element(p, s, hi, i, dt)[0] - fprev - kdt * (v - hi)
+                if hh >= 0.0:
+                    break
+        tol = 1e-12 * (1.0 + abs(v))
+        for _ in range(60):
+            fd, dfd, y, m, g = _element(p, s, u, i, dt)
+            h = fd - fprev - kdt * (v - u)
+            if h > 0.0:
+                hi = u
+            else:
+                lo = u
+            un = u - h / (dfd + kdt)
+            if not (lo < un < hi):
+                un = 0.5 * (lo + hi)
+            if abs(un - u) <= tol:
+                u = un
+                break
+            u = un
+        fd, dfd, y, m, g = _element(p, s, u, i, dt)
+        if dfd < 0.0:
+            dfd = 0.0
+        tangent = dfd * kdt / (dfd + kdt)
+    else:
+        u = v
+        fd, dfd, y, m, g = _element(p, s, u, i, dt)
+        tangent = dfd if dfd > 0.0 else 0.0
+    force = p[P_F0] + p[P_KG1] * x + p[P_KG2] * x * x + fd
+    if p[P_XH] > 0.0:
+        s[S_Z] = y
+    s[S_FD] = fd
+    if p[P_KAPPA] > 0.0:
+        s[S_E] = s[S_E] * math.exp(-dt / p[P_TAUTH]) + fd * u * dt
+    s[S_U] = u
+    s[S_Y] = y
+    s[S_M] = m
+    s[S_G] = g
+    return force, tangent
+
+
+@njit(cache=True)
+def simulate_extended(p, x, v, i, dt):
+    """Run ``extended_force`` along a record from rest; return ``(F, u, y, M, g)`` arrays."""
+    n = x.shape[0]
+    s = np.zeros(EXT_NSTATE)
+    f = np.empty(n)
+    u = np.empty(n)
+    y = np.empty(n)
+    m = np.empty(n)
+    g = np.empty(n)
+    for k in range(n):
+        f[k] = extended_force(p, s, x[k], v[k], i[k], dt)[0]
+        u[k] = s[S_U]
+        y[k] = s[S_Y]
+        m[k] = s[S_M]
+        g[k] = s[S_G]
+    return f, u, y, m, g

@@ -1,0 +1,285 @@
+"""Fixed-step offline simulator: plant + driver + damper + controller, single corner or batch.
+
+One step at ``t_n`` (the node set runs the same functions in the same order):
+
+1. the controller reads the measurements (body/wheel acceleration, stroke and its rate, body
+   and wheel velocity, field current) and returns a current command, delayed by
+   ``control_delay`` (sensor and compute latency);
+2. the driver and fluid turn it into coil and field current (:mod:`~mr_suspension.core.driver`);
+3. the damper law gives the force and its tangent at the present stroke and rate;
+4. the plant advances with the linearly implicit trapezoidal step
+   (:func:`~mr_suspension.core.quarter_car.plant_step`), road at mid-step.
+
+Deterministic: no randomness is drawn here (roads are generated from a seed beforehand).
+"""
+
+from dataclasses import dataclass, field, replace
+
+from numba import njit, prange
+import numpy as np
+
+from mr_suspension.control.laws import controller_step, ControllerParams, N_CTRL_STATE, N_MEAS
+from mr_suspension.core import damper as dmp
+from mr_suspension.core.driver import DRIVER_STATE_SIZE, driver_step, DriverParams
+from mr_suspension.core.metrics import rms, wk_sos
+from mr_suspension.core.quarter_car import CAR_G, CAR_MS, CAR_MU, plant_step, QuarterCarParams
+from mr_suspension.core.quarter_car import VS, VU, ZS, ZU
+from mr_suspension.core.validation import check_nonneg, check_positive
+
+# Recorded channels of a single-corner run.
+CHANNELS = ('z_s', 'z_u', 'v_s', 'v_u', 'a_s', 'a_u', 'stroke', 'stroke_rate', 'f_d', 'f_t',
+            'i_cmd', 'i_coil', 'i_field', 'z_r')
+(CH_ZS, CH_ZU, CH_VS, CH_VU, CH_AS, CH_AU, CH_X, CH_V, CH_FD, CH_FT, CH_ICMD, CH_ICOIL,
+ CH_IFIELD, CH_ZR) = range(len(CHANNELS))
+# Online metrics of a batch run.
+BATCH_METRICS = ('body_acc_rms', 'body_acc_peak', 'body_acc_wk_rms', 'vdv',
+                 'working_space_rms', 'working_space_peak', 'tyre_load_rms', 'ntf_min',
+                 'damper_energy')
+DELAY_BUFFER = 256
+
+
+@dataclass(frozen=True)
+class CornerConfig:
+    """Everything that defines one simulated corner (SI units)."""
+
+    car: QuarterCarParams = field(default_factory=QuarterCarParams)
+    damper: object = field(default_factory=dmp.BinghamParams)
+    driver: DriverParams = field(default_factory=DriverParams)
+    controller: ControllerParams = field(default_factory=ControllerParams)
+    dt: float = 1e-3
+    control_delay: float = 0.0
+
+    def __post_init__(self):
+        check_positive('CornerConfig', dt=self.dt)
+        check_nonneg('CornerConfig', control_delay=self.control_delay)
+        if self.dt > 0.01:
+            raise ValueError('CornerConfig: dt must be <= 0.01 s for a stable, accurate step')
+        if self.control_delay / self.dt > DELAY_BUFFER - 1:
+            raise ValueError(f'CornerConfig: control_delay must be < {DELAY_BUFFER} steps')
+        dmp.law_id_of(self.damper)
+
+    def replace(self, **changes):
+        """Return a copy with fields replaced."""
+        return replace(self, **changes)
+
+    def damper_static_force(self):
+        """Damper force at rest (x = 0, v = 0, zero current): balanced by the spring preload."""
+        s = np.zeros(dmp.n_state_of(self.damper) + 8)
+        return float(dmp.damper_force(dmp.law_id_of(self.damper), self.damper.to_array(), s,
+                                      0.0, 0.0, 0.0, self.dt)[0])
+
+    def arrays(self):
+        """Parameter arrays for the jitted kernels: (car, law, damper, driver, cid, ctrl)."""
+        return (self.car.to_array(self.damper_static_force()), dmp.law_id_of(self.damper),
+                self.damper.to_array(), self.driver.to_array(), self.controller.law_id,
+                self.controller.to_array())
+
+
+@dataclass(frozen=True)
+class SimResult:
+    """Time histories of a single-corner run (SI units); see :data:`CHANNELS`."""
+
+    dt: float
+    data: np.ndarray
+    static_tyre_load: float
+    config: CornerConfig
+
+    def __getattr__(self, name):
+        if name in CHANNELS:
+            return self.data[:, CHANNELS.index(name)]
+        raise AttributeError(name)
+
+    @property
+    def t(self):
+        """Sample times [s] (end of each step)."""
+        return (np.arange(self.data.shape[0]) + 1) * self.dt
+
+    def to_csv(self, path):
+        """Write ``time`` plus all channels as CSV with a header."""
+        header = ','.join(('time',) + CHANNELS)
+        np.savetxt(path, np.column_stack([self.t, self.data]), delimiter=',', header=header,
+                   comments='', fmt='%.9g')
+
+
+@njit(cache=True)
+def corner_loop(car_p, law, dp, ds, drv_p, drv_s, cid, cp, cs, road_z, road_zd, dt,
+                delay_n, q, out, record, sos, acc):
+    """Run one corner over the road; records channels into ``out`` and metrics into ``acc``.
+
+    ``acc`` accumulates [sum a^2, max |a|, sum a_w^2, sum a_w^4, sum x^2, max |x|,
+    sum dF_t^2, min F_t, sum F_d v dt].
+    """
+    n = road_z.shape[0] - 1
+    m = np.zeros(N_MEAS)
+    dbuf = np.zeros(DELAY_BUFFER)
+    head = 0
+    a_s = 0.0
+    a_u = 0.0
+    f_field = drv_s[1]
+    nsec = sos.shape[0]
+    zi = np.zeros((nsec, 2))
+    f_t0 = (car_p[CAR_MS] + car_p[CAR_MU]) * car_p[CAR_G]
+    acc[7] = 1e300
+    for k in range(n):
+        x = q[ZS] - q[ZU]
+        v = q[VS] - q[VU]
+        m[0] = a_s
+        m[1] = a_u
+        m[2] = x
+        m[3] = v
+        m[4] = q[VS]
+        m[5] = q[VU]
+        m[6] = f_field
+        i_cmd = controller_step(cid, cp, cs, m, dt)
+        if delay_n > 0:
+            i_apply = dbuf[head]
+            dbuf[head] = i_cmd
+            head = (head + 1) % delay_n
+        else:
+            i_apply = i_cmd
+        coil, f_field = driver_step(drv_p, drv_s, i_apply, dt)
+        f_d, c_d = dmp.damper_force(law, dp, ds, x, v, f_field, dt)
+        z_r = 0.5 * (road_z[k] + road_z[k + 1])
+        zr_dot = 0.5 * (road_zd[k] + road_zd[k + 1])
+        a_s, a_u, f_t = plant_step(car_p, q, f_d, c_d, z_r, zr_dot, dt)
+        # Wk-weighted body acceleration (direct form II transposed biquads).
+        y = a_s
+        for j in range(nsec):
+            x0 = y
+            y = sos[j, 0] * x0 + zi[j, 0]
+            zi[j, 0] = sos[j, 1] * x0 - sos[j, 4] * y + zi[j, 1]
+            zi[j, 1] = sos[j, 2] * x0 - sos[j, 5] * y
+        xs = q[ZS] - q[ZU]
+        acc[0] += a_s * a_s
+        acc[1] = max(acc[1], abs(a_s))
+        acc[2] += y * y
+        acc[3] += y * y * y * y
+        acc[4] += xs * xs
+        acc[5] = max(acc[5], abs(xs))
+        acc[6] += (f_t - f_t0) * (f_t - f_t0)
+        acc[7] = min(acc[7], f_t)
+        acc[8] += f_d * v * dt
+        if record:
+            out[k, 0] = q[ZS]
+            out[k, 1] = q[ZU]
+            out[k, 2] = q[VS]
+            out[k, 3] = q[VU]
+            out[k, 4] = a_s
+            out[k, 5] = a_u
+            out[k, 6] = xs
+            out[k, 7] = q[VS] - q[VU]
+            out[k, 8] = f_d
+            out[k, 9] = f_t
+            out[k, 10] = i_cmd
+            out[k, 11] = coil
+            out[k, 12] = f_field
+            out[k, 13] = road_z[k + 1]
+
+
+def _delay_steps(config):
+    return int(round(config.control_delay / config.dt))
+
+
+def _check_road(road, dt):
+    if abs(road.dt - dt) > 1e-12 * dt:
+        raise ValueError(f'road sampled at dt={road.dt} but the simulator steps at dt={dt}')
+    if not (np.all(np.isfinite(road.z)) and np.all(np.isfinite(road.zdot))):
+        raise ValueError('road profile contains NaN or inf')
+
+
+def simulate(config, road):
+    """Simulate one corner over ``road`` and return a :class:`SimResult`."""
+    _check_road(road, config.dt)
+    car_p, law, dp, drv_p, cid, cp = config.arrays()
+    ds = np.zeros(dmp.n_state_of(config.damper) + 8)
+    drv_s = np.zeros(DRIVER_STATE_SIZE)
+    cs = np.zeros(N_CTRL_STATE)
+    q = np.zeros(4)
+    out = np.empty((road.n_steps, len(CHANNELS)))
+    acc = np.zeros(len(BATCH_METRICS))
+    corner_loop(car_p, law, dp, ds, drv_p, drv_s, cid, cp, cs, road.z, road.zdot, config.dt,
+                _delay_steps(config), q, out, True, wk_sos(config.dt), acc)
+    if not np.all(np.isfinite(out)):
+        raise FloatingPointError('simulation diverged (non-finite state); check parameters')
+    return SimResult(config.dt, out, config.car.static_tyre_load, config)
+
+
+@njit(parallel=True, cache=True)
+def _batch(car_ps, laws, dps, drv_ps, cids, cps, road_idx, roads_z, roads_zd, dt, delays,
+           sos, nstate, acc):
+    nc = car_ps.shape[0]
+    dummy = np.empty((1, 1))
+    for c in prange(nc):
+        ds = np.zeros(nstate)
+        drv_s = np.zeros(DRIVER_STATE_SIZE)
+        cs = np.zeros(N_CTRL_STATE)
+        q = np.zeros(4)
+        r = road_idx[c]
+        corner_loop(car_ps[c], laws[c], dps[c], ds, drv_ps[c], drv_s, cids[c], cps[c], cs,
+                    roads_z[r], roads_zd[r], dt, delays[c], q, dummy, False, sos, acc[c])
+
+
+def _stack(arrays):
+    width = max(a.size for a in arrays)
+    out = np.zeros((len(arrays), width))
+    for k, a in enumerate(arrays):
+        out[k, :a.size] = a
+    return out
+
+
+def simulate_batch(configs, roads, road_index=None):
+    """Simulate many corners in parallel; returns a dict of metric arrays (one per corner).
+
+    ``configs`` is a sequence of :class:`CornerConfig` (same ``dt``), ``roads`` a sequence of
+    roads of equal length, ``road_index[c]`` which road corner ``c`` drives (default: all the
+    first). Metrics are accumulated online (no time histories are stored).
+    """
+    configs = list(configs)
+    roads = list(roads)
+    if not configs or not roads:
+        raise ValueError('simulate_batch needs at least one config and one road')
+    dt = configs[0].dt
+    if any(abs(c.dt - dt) > 1e-15 for c in configs):
+        raise ValueError('simulate_batch: all corners must share dt')
+    n = roads[0].z.size
+    for road in roads:
+        _check_road(road, dt)
+        if road.z.size != n:
+            raise ValueError('simulate_batch: all roads must have the same length')
+    nc = len(configs)
+    road_index = np.zeros(nc, dtype=np.int64) if road_index is None else \
+        np.asarray(road_index, dtype=np.int64)
+    if road_index.shape != (nc,) or road_index.min() < 0 or road_index.max() >= len(roads):
+        raise ValueError('simulate_batch: road_index must give a valid road for every corner')
+    arrs = [c.arrays() for c in configs]
+    acc = np.zeros((nc, len(BATCH_METRICS)))
+    nstate = max(dmp.n_state_of(c.damper) for c in configs) + 8
+    _batch(_stack([a[0] for a in arrs]), np.array([a[1] for a in arrs], dtype=np.int64),
+           _stack([a[2] for a in arrs]), _stack([a[3] for a in arrs]),
+           np.array([a[4] for a in arrs], dtype=np.int64), _stack([a[5] for a in arrs]),
+           road_index, np.stack([r.z for r in roads]), np.stack([r.zdot for r in roads]), dt,
+           np.array([_delay_steps(c) for c in configs], dtype=np.int64), wk_sos(dt), nstate,
+           acc)
+    steps = n - 1
+    return _metrics_from_acc(acc, steps, dt)
+
+
+def _metrics_from_acc(acc, steps, dt):
+    acc = np.asarray(acc)
+    return {
+        'body_acc_rms': np.sqrt(acc[:, 0] / steps),
+        'body_acc_peak': acc[:, 1],
+        'body_acc_wk_rms': np.sqrt(acc[:, 2] / steps),
+        'vdv': (acc[:, 3] * dt) ** 0.25,
+        'working_space_rms': np.sqrt(acc[:, 4] / steps),
+        'working_space_peak': acc[:, 5],
+        'tyre_load_rms': np.sqrt(acc[:, 6] / steps),
+        'ntf_min': acc[:, 7],
+        'damper_energy': acc[:, 8],
+    }
+
+
+def summary(result):
+    """Short dict of the main figures of a run (used by the CLI and the node-set checks)."""
+    return {'body_acc_rms': rms(result.a_s), 'working_space_rms': rms(result.stroke),
+            'tyre_load_rms': rms(result.f_t - result.static_tyre_load)}
