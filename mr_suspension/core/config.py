@@ -60,20 +60,20 @@ def load_yaml(kind, name_or_path):
 
 
 def load_vehicle(name):
-    """Quarter-car parameters from ``config/vehicles``."""
+    """Load quarter-car parameters from ``config/vehicles``."""
     return QuarterCarParams.from_dict(load_yaml('vehicles', name))
 
 
 def load_damper(name):
-    """Damper law and parameters from ``config/dampers`` (key ``law`` selects the law)."""
+    """Load a damper law and parameters from ``config/dampers`` (key ``law`` selects it)."""
     return damper_from_dict(load_yaml('dampers', name))
 
 
 def load_driver(name):
-    """Current driver (Wonder Box) and fluid parameters from ``config/drivers``."""
+    """Load current-driver (Wonder Box) and fluid parameters from ``config/drivers``."""
     return DriverParams.from_dict(load_yaml('drivers', name))
 
 
 def load_controller(name):
-    """Controller law and gains from ``config/controllers``."""
+    """Load a controller law and its gains from ``config/controllers``."""
     return ControllerParams.from_dict(load_yaml('controllers', name))

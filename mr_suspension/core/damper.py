@@ -16,6 +16,7 @@ from numba import njit
 import numpy as np
 
 from mr_suspension.core import extended
+from mr_suspension.core.fastmath import fast_tanh
 from mr_suspension.core.validation import build, check_finite, check_nonneg, check_positive
 
 LAW_LINEAR = 0
@@ -90,7 +91,7 @@ class BinghamParams(_Params):
 
 @dataclass(frozen=True)
 class TanhParams(_Params):
-    """Current-driven tanh model ``F = y_MR I tanh(c_MR v + k_MR x) + c_p v + k_p x`` (seed 002)."""
+    """Seed 002 current-driven model ``F = y_MR I tanh(c_MR v + k_MR x) + c_p v + k_p x``."""
 
     y_mr: float = 900.0
     c_mr: float = 30.0
@@ -168,7 +169,7 @@ class BoucWenParams(_Params):
     """Modified Bouc-Wen model (Spencer et al. 1997), SI units, current ``i`` as the command.
 
     ``F = c1 y_dot + k1 (x - x0)``,
-    ``z_dot = -gamma |x_dot - y_dot| z |z|^(n-1) - beta (x_dot - y_dot) |z|^n + A (x_dot - y_dot)``,
+    ``z_dot = -gamma |w| z |z|^(n-1) - beta w |z|^n + A w`` with ``w = x_dot - y_dot``,
     ``y_dot = (alpha z + c0 x_dot + k0 (x - y)) / (c0 + c1)``, with ``alpha, c0, c1`` affine in
     the current. Defaults are Spencer's identified values (per volt, read here per ampere).
     """
@@ -246,14 +247,14 @@ def bingham_force(p, v, i):
     """Smooth Bingham ``F = F0 + (c0 + c1 i) v + (fc0 + fc1 i) tanh(v / v_y)`` (seed 003)."""
     c = p[1] + p[2] * i
     fc = p[3] + p[4] * i
-    th = math.tanh(v / p[5])
+    th = fast_tanh(v / p[5])
     return p[0] + c * v + fc * th, c + fc * (1.0 - th * th) / p[5]
 
 
 @njit(cache=True)
 def tanh_force(p, x, v, i):
     """Seed 002 ``F = y_MR I tanh(c_MR v + k_MR x) + c_p v + k_p x``."""
-    th = math.tanh(p[1] * v + p[2] * x)
+    th = fast_tanh(p[1] * v + p[2] * x)
     return p[0] * i * th + p[3] * v + p[4] * x, p[0] * i * (1.0 - th * th) * p[1] + p[3]
 
 
@@ -291,7 +292,7 @@ def maxvel_force(p, s, x, v, i, dt):
 def _mech_d(p, u, i):
     c = p[4] + p[5] * i
     fy = p[6] + p[7] * i
-    th = math.tanh(u / p[8])
+    th = fast_tanh(u / p[8])
     return c * u + fy * th, c + fy * (1.0 - th * th) / p[8]
 
 

@@ -74,7 +74,7 @@ class DriverParams:
 
 @njit(cache=True)
 def static_current(p, volt):
-    """Static Wonder Box map (seed 000, Fig. 9 first block): voltage [V] -> current [A]."""
+    """Map voltage [V] to current [A]: the static Wonder Box block (seed 000, Fig. 9)."""
     if not volt > p[0]:
         return 0.0
     if volt > p[4]:
@@ -96,50 +96,82 @@ def command_voltage(p, i_cmd):
     return p[0] + s * p[2] / p[1]
 
 
-@njit(cache=True)
+# Prepared (dt-specific) driver array layout, see :func:`prepare`.
+Q_ITOP, Q_ARISE, Q_AFALL, Q_NDEAD, Q_FRISE, Q_FFALL = range(6)
+Q_STATIC = 6  # the static-map parameters follow (DriverParams.to_array()[:5])
+
+
 def _alpha(tau, dt):
-    if tau <= 0.0:
-        return 1.0
-    return 1.0 - math.exp(-dt / tau)
+    return 1.0 if tau <= 0.0 else 1.0 - math.exp(-dt / tau)
+
+
+def prepare(params, dt):
+    """Return the driver array for step ``dt``.
+
+    Layout: largest deliverable current, ZOH lag factors ``1 - exp(-dt/tau)``, dead time in
+    samples, then the static-map parameters.
+    """
+    p = params.to_array()
+    n_dead = int(round(params.dead_time / dt))
+    if n_dead > DEAD_TIME_BUFFER:
+        raise ValueError(f'DriverParams: dead_time {params.dead_time} s exceeds '
+                         f'{DEAD_TIME_BUFFER} steps of {dt} s')
+    head = [float(static_current(p, params.v_max)), _alpha(params.tau_rise, dt),
+            _alpha(params.tau_fall, dt), float(n_dead), _alpha(params.fluid_tau_rise, dt),
+            _alpha(params.fluid_tau_fall, dt)]
+    return np.concatenate([np.array(head), p[:5]])
 
 
 @njit(cache=True)
-def driver_step_voltage(p, s, volt, dt):
-    """Advance driver and fluid one step from an input voltage; returns (coil, field) [A].
+def driver_step_current(q, s, u):
+    """Advance driver and fluid one step from the static-map output ``u`` [A].
 
     ``y += (1 - exp(-dt/tau)) (u - y)`` with ``tau = tau_rise`` if ``u > y`` else ``tau_fall``
     (exact for a piecewise-constant input), then the dead time as a ring buffer of
     ``round(dead_time / dt)`` samples, then the fluid lag with its own rise/fall constants.
+    Returns (coil current, field current) [A].
     """
-    u = static_current(p, volt)
     y = s[DRV_LAG]
-    tau = p[5] if u > y else p[6]
-    y += _alpha(tau, dt) * (u - y)
+    y += (q[Q_ARISE] if u > y else q[Q_AFALL]) * (u - y)
     s[DRV_LAG] = y
-    nd = int(p[7] / dt + 0.5)
-    if nd > DEAD_TIME_BUFFER:
-        nd = DEAD_TIME_BUFFER
+    nd = int(q[Q_NDEAD])
     if nd > 0:
         head = int(s[DRV_HEAD])
         coil = s[DRV_BUF + head]
         s[DRV_BUF + head] = y
-        s[DRV_HEAD] = (head + 1) % nd
+        head += 1
+        s[DRV_HEAD] = 0 if head >= nd else head
     else:
         coil = y
     f = s[DRV_FLUID]
-    tau = p[8] if coil > f else p[9]
-    f += _alpha(tau, dt) * (coil - f)
+    f += (q[Q_FRISE] if coil > f else q[Q_FFALL]) * (coil - f)
     s[DRV_FLUID] = f
     return coil, f
 
 
 @njit(cache=True)
-def driver_step(p, s, i_cmd, dt):
-    """Advance driver and fluid one step from a current command [A]; returns (coil, field)."""
-    return driver_step_voltage(p, s, command_voltage(p, i_cmd), dt)
+def driver_step_voltage(q, s, volt):
+    """Advance one step from a driver input voltage [V] (static map, lag, dead time, fluid)."""
+    return driver_step_current(q, s, static_current(q[Q_STATIC:], volt))
 
 
-def driver_state(params=None, current=0.0):
+@njit(cache=True)
+def driver_step(q, s, i_cmd):
+    """Advance one step from a current command [A].
+
+    The ECU applies ``command_voltage(i_cmd)`` and the driver's static map returns
+    ``static_current`` of it, which is ``i_cmd`` clipped to ``[0, i_top]``; that identity is used
+    directly (no pow calls on the hot path).
+    """
+    u = i_cmd
+    if not u > 0.0:
+        u = 0.0
+    elif u > q[Q_ITOP]:
+        u = q[Q_ITOP]
+    return driver_step_current(q, s, u)
+
+
+def driver_state(current=0.0):
     """Return a driver state array at rest with all stages at ``current`` [A]."""
     s = np.zeros(DRIVER_STATE_SIZE)
     s[DRV_LAG] = current
@@ -149,12 +181,12 @@ def driver_state(params=None, current=0.0):
 
 
 @njit(cache=True)
-def driver_series(p, i_cmd, dt):
+def driver_series(q, i_cmd):
     """Run the driver over a command array from rest; returns (coil, field) arrays."""
     s = np.zeros(DRIVER_STATE_SIZE)
     n = i_cmd.shape[0]
     coil = np.empty(n)
     field = np.empty(n)
     for k in range(n):
-        coil[k], field[k] = driver_step(p, s, i_cmd[k], dt)
+        coil[k], field[k] = driver_step(q, s, i_cmd[k])
     return coil, field

@@ -145,44 +145,26 @@ def extended_force(p, s, x, v, i, dt):
     if k1 > 0.0:
         kdt = k1 * dt
         fprev = s[S_FD]
-        # Monotone root of h(u) = F_d(u) - F_prev - k1 dt (v - u): bracket, then safeguarded
-        # Newton (h' = F_d' + k1 dt > 0).
+        # Monotone root of h(u) = F_d(u) - F_prev - k1 dt (v - u) (h' = F_d' + k1 dt > 0):
+        # Newton from the previous u, kept inside the bracket of the signs seen so far.
         u = s[S_U]
-        h, dh, y, m, g = _element(p, s, u, i, dt)
-        h = h - fprev - kdt * (v - u)
-        step = abs(v - u) + p[P_VY]
-        lo = u
-        hi = u
-        if h > 0.0:
-            for _ in range(60):
-                lo = lo - step
-                step *= 2.0
-                hl = _element(p, s, lo, i, dt)[0] - fprev - kdt * (v - lo)
-                if hl <= 0.0:
-                    break
-        else:
-            for _ in range(60):
-                hi = hi + step
-                step *= 2.0
-                hh = _element(p, s, hi, i, dt)[0] - fprev - kdt * (v - hi)
-                if hh >= 0.0:
-                    break
-        tol = 1e-12 * (1.0 + abs(v))
-        for _ in range(60):
+        lo = -np.inf
+        hi = np.inf
+        tol = 1e-10 * (abs(v) + p[P_VY])
+        for _ in range(80):
             fd, dfd, y, m, g = _element(p, s, u, i, dt)
             h = fd - fprev - kdt * (v - u)
             if h > 0.0:
                 hi = u
             else:
                 lo = u
-            un = u - h / (dfd + kdt)
+            un = u - h / (max(dfd, 0.0) + kdt)
             if not (lo < un < hi):
-                un = 0.5 * (lo + hi)
+                if lo > -np.inf and hi < np.inf:
+                    un = 0.5 * (lo + hi)
             if abs(un - u) <= tol:
-                u = un
                 break
             u = un
-        fd, dfd, y, m, g = _element(p, s, u, i, dt)
         if dfd < 0.0:
             dfd = 0.0
         tangent = dfd * kdt / (dfd + kdt)

@@ -83,7 +83,7 @@ def settling_time(t, y, band=0.02, t_start=0.0, floor=1e-3):
 
 
 def ride_metrics(result, t_event=0.0):
-    """Standard metrics of a :class:`~mr_suspension.core.simulator.SimResult` (SI units).
+    """Compute the standard metrics of a simulation result (SI units).
 
     Body acceleration RMS/peak, Wk-weighted RMS and VDV, working space RMS/peak, dynamic tyre
     load RMS, normalised tyre force RMS and minimum, lift-off fraction, the peak sprung-unsprung

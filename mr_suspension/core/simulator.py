@@ -19,8 +19,8 @@ from numba import njit, prange
 import numpy as np
 
 from mr_suspension.control.laws import controller_step, ControllerParams, N_CTRL_STATE, N_MEAS
-from mr_suspension.core import damper as dmp
-from mr_suspension.core.driver import DRIVER_STATE_SIZE, driver_step, DriverParams
+from mr_suspension.core import batch, damper as dmp
+from mr_suspension.core.driver import DRIVER_STATE_SIZE, driver_step, DriverParams, prepare
 from mr_suspension.core.metrics import rms, wk_sos
 from mr_suspension.core.quarter_car import CAR_G, CAR_MS, CAR_MU, plant_step, QuarterCarParams
 from mr_suspension.core.quarter_car import VS, VU, ZS, ZU
@@ -71,7 +71,7 @@ class CornerConfig:
     def arrays(self):
         """Parameter arrays for the jitted kernels: (car, law, damper, driver, cid, ctrl)."""
         return (self.car.to_array(self.damper_static_force()), dmp.law_id_of(self.damper),
-                self.damper.to_array(), self.driver.to_array(), self.controller.law_id,
+                self.damper.to_array(), prepare(self.driver, self.dt), self.controller.law_id,
                 self.controller.to_array())
 
 
@@ -137,7 +137,7 @@ def corner_loop(car_p, law, dp, ds, drv_p, drv_s, cid, cp, cs, road_z, road_zd, 
             head = (head + 1) % delay_n
         else:
             i_apply = i_cmd
-        coil, f_field = driver_step(drv_p, drv_s, i_apply, dt)
+        coil, f_field = driver_step(drv_p, drv_s, i_apply)
         f_d, c_d = dmp.damper_force(law, dp, ds, x, v, f_field, dt)
         z_r = 0.5 * (road_z[k] + road_z[k + 1])
         zr_dot = 0.5 * (road_zd[k] + road_zd[k + 1])
@@ -227,12 +227,14 @@ def _stack(arrays):
     return out
 
 
-def simulate_batch(configs, roads, road_index=None):
+def simulate_batch(configs, roads, road_index=None, fast=True):
     """Simulate many corners in parallel; returns a dict of metric arrays (one per corner).
 
     ``configs`` is a sequence of :class:`CornerConfig` (same ``dt``), ``roads`` a sequence of
     roads of equal length, ``road_index[c]`` which road corner ``c`` drives (default: all the
-    first). Metrics are accumulated online (no time histories are stored).
+    first). Metrics are accumulated online (no time histories are stored). Corners with
+    affine-tanh laws at constant current take the vectorised kernel of
+    :mod:`~mr_suspension.core.batch` unless ``fast`` is False; the others the generic one.
     """
     configs = list(configs)
     roads = list(roads)
@@ -251,16 +253,22 @@ def simulate_batch(configs, roads, road_index=None):
         np.asarray(road_index, dtype=np.int64)
     if road_index.shape != (nc,) or road_index.min() < 0 or road_index.max() >= len(roads):
         raise ValueError('simulate_batch: road_index must give a valid road for every corner')
+    roads_z = np.stack([r.z for r in roads])
+    roads_zd = np.stack([r.zdot for r in roads])
+    steps = n - 1
+    if fast and batch.eligible(configs):
+        acc = batch.run(configs, road_index, roads_z, roads_zd, dt, wk_sos(dt),
+                        len(BATCH_METRICS))
+        return _metrics_from_acc(acc, steps, dt)
     arrs = [c.arrays() for c in configs]
     acc = np.zeros((nc, len(BATCH_METRICS)))
     nstate = max(dmp.n_state_of(c.damper) for c in configs) + 8
     _batch(_stack([a[0] for a in arrs]), np.array([a[1] for a in arrs], dtype=np.int64),
            _stack([a[2] for a in arrs]), _stack([a[3] for a in arrs]),
            np.array([a[4] for a in arrs], dtype=np.int64), _stack([a[5] for a in arrs]),
-           road_index, np.stack([r.z for r in roads]), np.stack([r.zdot for r in roads]), dt,
+           road_index, roads_z, roads_zd, dt,
            np.array([_delay_steps(c) for c in configs], dtype=np.int64), wk_sos(dt), nstate,
            acc)
-    steps = n - 1
     return _metrics_from_acc(acc, steps, dt)
 
 

@@ -1,0 +1,220 @@
+"""Step-by-step pieces of :func:`~mr_suspension.core.simulator.corner_loop` for the ROS 2 nodes.
+
+The offline simulator runs controller, driver, damper and plant in one jitted loop. The node set
+splits that loop into three objects that hold their own arrays and run the very same jitted
+functions in the very same order, so a lock-step run of the nodes reproduces the simulator:
+
+* :class:`ControllerStepper`: measurement vector -> current command (``controller_step``);
+* :class:`ActuatorStepper`: command and stroke motion -> coil/field current, damper force and its
+  tangent ``dF/dv`` (``driver_step`` then ``damper_force``);
+* :class:`PlantStepper`: damper force and tangent -> next corner state (``plant_step``, road at
+  mid-step).
+
+Coupling (one-sample, stable by design): the actuator returns the force ``F_m`` *and* its
+tangent ``c_m = dF/dv`` evaluated at the stroke rate ``v_m`` it was given. The plant applies
+``F_m + c_m (v - v_m)`` with ``v`` its own present stroke rate (:meth:`PlantStepper.coupled`)
+inside the linearly implicit step, so the stiff pre-yield branch of MR laws acts implicitly even
+when the force is one sample old; when the force belongs to the present sample (lock-step, or a
+fast loop in real time) the correction is exactly zero and the step equals the simulator's.
+
+Pure numerics (no ROS imports).
+"""
+
+import inspect
+import math
+
+import numpy as np
+
+from mr_suspension.control import laws
+from mr_suspension.core import damper as dmp
+from mr_suspension.core import driver as drv
+from mr_suspension.core import quarter_car as qc
+from mr_suspension.core.simulator import DELAY_BUFFER
+
+# The driver step lost its ``dt`` argument when the driver array became dt-specific; accept both.
+_DRIVER_STEP_ARGS = len(inspect.signature(getattr(drv.driver_step, 'py_func',
+                                                  drv.driver_step)).parameters)
+
+
+def _driver_step(q, s, i_cmd, dt):
+    if _DRIVER_STEP_ARGS == 3:
+        return drv.driver_step(q, s, i_cmd)
+    return drv.driver_step(q, s, i_cmd, dt)
+
+
+class ControllerStepper:
+    """Control law of a :class:`~mr_suspension.core.simulator.CornerConfig` one step at a time.
+
+    ``step(acc_s, acc_u, stroke, field)`` takes what a car's sensors give (body and wheel
+    acceleration with gravity removed [m/s^2], stroke [m], measured current [A]). The velocity
+    slots of the measurement vector (``M_STROKE_RATE``, ``M_VEL_S``, ``M_VEL_U``) are filled from
+    ``velocities`` when given (ground truth is only passed by tests and the offline comparison),
+    else by the control core's estimator when it provides one, else by :class:`SimpleEstimator`.
+    """
+
+    def __init__(self, config):
+        _, _, _, _, self.cid, self.cp = config.arrays()
+        self.cs = np.zeros(laws.N_CTRL_STATE)
+        self.m = np.zeros(laws.N_MEAS)
+        self.dt = config.dt
+        self.estimator = SimpleEstimator(config.dt)
+        self.i_min = float(self.cp[laws.P_IMIN])
+        self.i_max = float(self.cp[laws.P_IMAX])
+
+    def step(self, acc_s, acc_u, stroke, field=0.0, velocities=None):
+        """Return the current command [A] for one sample of measurements."""
+        m = self.m
+        m[laws.M_ACC_S] = acc_s
+        m[laws.M_ACC_U] = acc_u
+        m[laws.M_STROKE] = stroke
+        m[laws.M_FIELD] = field
+        if velocities is None:
+            velocities = self.estimator.update(acc_s, acc_u, stroke)
+        m[laws.M_STROKE_RATE], m[laws.M_VEL_S], m[laws.M_VEL_U] = velocities
+        return float(laws.controller_step(self.cid, self.cp, self.cs, m, self.dt))
+
+
+class SimpleEstimator:
+    """Velocities from sensors: stroke rate and body/wheel velocity (interim, see module notes).
+
+    Stroke rate: backward difference of the stroke through a first-order low-pass (corner
+    ``f_rate``). Body and wheel velocity: leaky trapezoidal integration of the acceleration (leak
+    corner ``f_leak``, removes the drift of an integrated accelerometer, as in skyhook practice).
+    """
+
+    def __init__(self, dt, f_rate=100.0, f_leak=0.3):
+        self.dt = dt
+        self.a_rate = 1.0 - math.exp(-2.0 * math.pi * f_rate * dt)
+        self.leak = math.exp(-2.0 * math.pi * f_leak * dt)
+        self.x_prev = None
+        self.rate = 0.0
+        self.v_s = 0.0
+        self.v_u = 0.0
+        self.a_s_prev = 0.0
+        self.a_u_prev = 0.0
+
+    def update(self, acc_s, acc_u, stroke):
+        """Return ``(stroke_rate, v_s, v_u)`` after one sample."""
+        if self.x_prev is not None:
+            raw = (stroke - self.x_prev) / self.dt
+            self.rate += self.a_rate * (raw - self.rate)
+        self.x_prev = stroke
+        self.v_s = self.leak * self.v_s + 0.5 * self.dt * (acc_s + self.a_s_prev)
+        self.v_u = self.leak * self.v_u + 0.5 * self.dt * (acc_u + self.a_u_prev)
+        self.a_s_prev = acc_s
+        self.a_u_prev = acc_u
+        return self.rate, self.v_s, self.v_u
+
+
+class ActuatorStepper:
+    """Current driver (Wonder Box), fluid and MR damper one step at a time.
+
+    ``step(i_cmd, x, v)`` advances the driver by one sample with the command, then evaluates
+    the damper law at stroke ``x`` and rate ``v``; returns ``(coil, field, force, tangent)``.
+    ``delay_steps`` reproduces the simulator's ``control_delay`` (0 by default).
+    """
+
+    def __init__(self, config, delay_steps=None):
+        _, self.law, self.dp, self.drv_p, _, _ = config.arrays()
+        self.ds = np.zeros(dmp.n_state_of(config.damper) + 8)
+        self.drv_s = np.zeros(drv.DRIVER_STATE_SIZE)
+        self.dt = config.dt
+        if delay_steps is None:
+            delay_steps = int(round(config.control_delay / config.dt))
+        if not 0 <= delay_steps < DELAY_BUFFER:
+            raise ValueError(f'ActuatorStepper: delay_steps must be in [0, {DELAY_BUFFER})')
+        self.delay_n = delay_steps
+        self.dbuf = np.zeros(max(delay_steps, 1))
+        self.head = 0
+
+    def step(self, i_cmd, x, v):
+        """Return (coil current, field current, damper force, dF/dv) for one sample."""
+        if self.delay_n > 0:
+            i_apply = self.dbuf[self.head]
+            self.dbuf[self.head] = i_cmd
+            self.head = (self.head + 1) % self.delay_n
+        else:
+            i_apply = i_cmd
+        coil, field = _driver_step(self.drv_p, self.drv_s, i_apply, self.dt)
+        f_d, c_d = dmp.damper_force(self.law, self.dp, self.ds, x, v, field, self.dt)
+        return float(coil), float(field), float(f_d), float(c_d)
+
+
+class PlantStepper:
+    """Quarter car driven over a road, one fixed step at a time.
+
+    Sample ``k`` is the state at ``t_k = k dt``; :meth:`step` advances to ``k + 1`` with the road
+    at mid-step, exactly as the simulator. ``a_s``, ``a_u`` and ``f_t`` hold the mean body and
+    wheel acceleration and the tyre force of the last step (``0, 0, static load`` at ``k = 0``).
+    """
+
+    def __init__(self, config, road):
+        if abs(road.dt - config.dt) > 1e-12 * config.dt:
+            raise ValueError(f'road sampled at dt={road.dt} but the plant steps at '
+                             f'dt={config.dt}')
+        self.car_p = config.arrays()[0]
+        self.q = np.zeros(4)
+        self.road = road
+        self.dt = config.dt
+        self.k = 0
+        self.a_s = 0.0
+        self.a_u = 0.0
+        self.static_tyre_load = config.car.static_tyre_load
+        self.f_t = self.static_tyre_load
+        self.f_d = 0.0
+        self.g = config.car.g
+
+    @property
+    def n_steps(self):
+        """Number of steps the road covers."""
+        return self.road.n_steps
+
+    @property
+    def done(self):
+        """True once the road is used up."""
+        return self.k >= self.road.n_steps
+
+    @property
+    def t(self):
+        """Time of the present sample [s]."""
+        return self.k * self.dt
+
+    @property
+    def stroke(self):
+        """Stroke ``x = z_s - z_u`` [m] (+ = extension)."""
+        return float(self.q[qc.ZS] - self.q[qc.ZU])
+
+    @property
+    def stroke_rate(self):
+        """Stroke rate ``v = v_s - v_u`` [m/s]."""
+        return float(self.q[qc.VS] - self.q[qc.VU])
+
+    def road_now(self):
+        """Road height and rate at the present sample [m, m/s]."""
+        k = min(self.k, self.road.n_steps)
+        return float(self.road.z[k]), float(self.road.zdot[k])
+
+    def coupled(self, f_m, c_m, v_m):
+        """Force to apply now from a force ``f_m`` and tangent ``c_m`` evaluated at rate ``v_m``.
+
+        First-order extrapolation along the tangent to the present stroke rate; zero correction
+        when the force belongs to the present sample.
+        """
+        return f_m + c_m * (self.stroke_rate - v_m)
+
+    def step(self, f_d, c_d):
+        """Advance one step with damper force ``f_d`` [N] and tangent ``c_d`` [N s/m]."""
+        k = self.k
+        if k >= self.road.n_steps:
+            raise IndexError('PlantStepper: the road is used up')
+        z_r = 0.5 * (self.road.z[k] + self.road.z[k + 1])
+        zr_dot = 0.5 * (self.road.zdot[k] + self.road.zdot[k + 1])
+        a_s, a_u, f_t = qc.plant_step(self.car_p, self.q, f_d, c_d, z_r, zr_dot, self.dt)
+        self.a_s = float(a_s)
+        self.a_u = float(a_u)
+        self.f_t = float(f_t)
+        self.f_d = float(f_d)
+        self.k = k + 1
+        if not np.all(np.isfinite(self.q)):
+            raise FloatingPointError('plant diverged (non-finite state); check parameters')
+        return self.a_s, self.a_u, self.f_t
