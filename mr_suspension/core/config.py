@@ -50,8 +50,11 @@ def load_yaml(kind, name_or_path):
         names = available(kind) if kind in KINDS else []
         raise FileNotFoundError(f'no {kind} parameter set {name_or_path!r} ({path}); '
                                 f'available: {names}')
-    with open(path, encoding='utf-8') as fh:
-        data = yaml.safe_load(fh)
+    try:
+        with open(path, encoding='utf-8') as fh:
+            data = yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        raise ValueError(f'{path}: not valid YAML ({exc})') from None
     if not isinstance(data, dict):
         raise ValueError(f'{path}: expected a mapping of parameters')
     data.pop('description', None)

@@ -300,20 +300,33 @@ def _mech_d(p, u, i):
 def mechanical_force(p, s, x, v, i, dt):
     """Seed 000 series model; implicit Euler on the internal coordinate ``xi`` (s[0]).
 
-    Solves ``d(u, i) + k1 dt u = k1 (x - xi_n)`` for ``u = xi_dot`` by safeguarded Newton
-    (the left side is monotone in ``u``), then ``xi += dt u``. Tangent: ``d'`` in series with
+    Solves ``d(u, i) + k1 dt u = k1 (x - xi_n)`` for ``u = xi_dot`` by Newton safeguarded
+    with bisection (the left side is monotone in ``u``), then ``xi += dt u``. Tangent: ``d'`` in series with
     ``k1 dt``.
     """
     k1 = p[0]
     rhs = k1 * (x - s[0])
-    u = v
-    for _ in range(30):
+    # g(u) = (c + k1 dt) u + fy tanh(u / v_y) - rhs is increasing, and its root lies within
+    # fy / (c + k1 dt) of rhs / (c + k1 dt): Newton steps, falling back to bisection.
+    slope = p[4] + p[5] * i + k1 * dt
+    fy = p[6] + p[7] * i
+    lo = (rhs - fy) / slope
+    hi = (rhs + fy) / slope
+    u = rhs / slope
+    for _ in range(60):
         d, dd = _mech_d(p, u, i)
         g = d + k1 * dt * u - rhs
-        step = g / (dd + k1 * dt)
-        u -= step
-        if abs(step) < 1e-12 * (1.0 + abs(u)):
+        if g > 0.0:
+            hi = u
+        else:
+            lo = u
+        un = u - g / (dd + k1 * dt)
+        if not (lo < un < hi):
+            un = 0.5 * (lo + hi)
+        if abs(un - u) <= 1e-13 * (1.0 + abs(u)):
+            u = un
             break
+        u = un
     d, dd = _mech_d(p, u, i)
     s[0] += dt * u
     f_acc = -(p[1] * x * x + p[2] * x + p[3])
@@ -336,14 +349,17 @@ def bouc_wen_force(p, s, x, v, i, dt):
     for _ in range(nsub):
         ydot = (alpha * z + c0 * v + k0 * (x - y)) / (c0 + c1)
         w = v - ydot
-        # z_new = z + h w (A - (gamma sgn(w z_new) + beta) |z_new| z_new): solve the quadratic
-        # for the branch sign(z_new) = sign(w) (loading) or the opposite (unloading).
+        # Implicit Euler with frozen w: -gamma |w| z |z| - beta w z^2 = -w z^2 (gamma sg + beta)
+        # with sg = sign(w z), so z_new = z + h w (A - (gamma sg + beta) z_new^2): Newton on
+        # that quadratic, the branch sg taken from the current iterate.
         zn = z
         for _k in range(8):
             sg = 1.0 if w * zn >= 0.0 else -1.0
             a = h * w * (p[9] * sg + p[10])
-            f = zn - z - h * w * p[11] + a * abs(zn) * zn
-            df = 1.0 + 2.0 * a * abs(zn)
+            f = zn - z - h * w * p[11] + a * zn * zn
+            df = 1.0 + 2.0 * a * zn
+            if df < 0.5:
+                df = 0.5
             zn -= f / df
         z = zn
         y += h * ydot

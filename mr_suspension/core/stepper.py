@@ -46,10 +46,11 @@ class ControllerStepper:
     """Control law of a :class:`~mr_suspension.core.simulator.CornerConfig` one step at a time.
 
     ``step(acc_s, acc_u, stroke, field)`` takes what a car's sensors give (body and wheel
-    acceleration with gravity removed [m/s^2], stroke [m], measured current [A]). The velocity
-    slots of the measurement vector (``M_STROKE_RATE``, ``M_VEL_S``, ``M_VEL_U``) are filled from
-    ``velocities`` when given (ground truth is only passed by tests and the offline comparison),
-    else by the control core's estimator when it provides one, else by :class:`SimpleEstimator`.
+    acceleration with gravity removed [m/s^2], stroke [m], measured current [A], NaN when
+    unknown). The velocity slots of the measurement vector (``M_STROKE_RATE``, ``M_VEL_S``,
+    ``M_VEL_U``) are NaN: the control core estimates the velocities from the sensors
+    (:mod:`mr_suspension.control.estimation`). ``velocities`` fills them for studies with
+    ideal measurements (``estimation='ideal'``).
     """
 
     def __init__(self, config):
@@ -57,11 +58,10 @@ class ControllerStepper:
         self.cs = np.zeros(laws.N_CTRL_STATE)
         self.m = np.zeros(laws.N_MEAS)
         self.dt = config.dt
-        self.estimator = SimpleEstimator(config.dt)
         self.i_min = float(self.cp[laws.P_IMIN])
         self.i_max = float(self.cp[laws.P_IMAX])
 
-    def step(self, acc_s, acc_u, stroke, field=0.0, velocities=None):
+    def step(self, acc_s, acc_u, stroke, field=math.nan, velocities=None):
         """Return the current command [A] for one sample of measurements."""
         m = self.m
         m[laws.M_ACC_S] = acc_s
@@ -69,41 +69,9 @@ class ControllerStepper:
         m[laws.M_STROKE] = stroke
         m[laws.M_FIELD] = field
         if velocities is None:
-            velocities = self.estimator.update(acc_s, acc_u, stroke)
+            velocities = (math.nan, math.nan, math.nan)
         m[laws.M_STROKE_RATE], m[laws.M_VEL_S], m[laws.M_VEL_U] = velocities
         return float(laws.controller_step(self.cid, self.cp, self.cs, m, self.dt))
-
-
-class SimpleEstimator:
-    """Velocities from sensors: stroke rate and body/wheel velocity (interim, see module notes).
-
-    Stroke rate: backward difference of the stroke through a first-order low-pass (corner
-    ``f_rate``). Body and wheel velocity: leaky trapezoidal integration of the acceleration (leak
-    corner ``f_leak``, removes the drift of an integrated accelerometer, as in skyhook practice).
-    """
-
-    def __init__(self, dt, f_rate=100.0, f_leak=0.3):
-        self.dt = dt
-        self.a_rate = 1.0 - math.exp(-2.0 * math.pi * f_rate * dt)
-        self.leak = math.exp(-2.0 * math.pi * f_leak * dt)
-        self.x_prev = None
-        self.rate = 0.0
-        self.v_s = 0.0
-        self.v_u = 0.0
-        self.a_s_prev = 0.0
-        self.a_u_prev = 0.0
-
-    def update(self, acc_s, acc_u, stroke):
-        """Return ``(stroke_rate, v_s, v_u)`` after one sample."""
-        if self.x_prev is not None:
-            raw = (stroke - self.x_prev) / self.dt
-            self.rate += self.a_rate * (raw - self.rate)
-        self.x_prev = stroke
-        self.v_s = self.leak * self.v_s + 0.5 * self.dt * (acc_s + self.a_s_prev)
-        self.v_u = self.leak * self.v_u + 0.5 * self.dt * (acc_u + self.a_u_prev)
-        self.a_s_prev = acc_s
-        self.a_u_prev = acc_u
-        return self.rate, self.v_s, self.v_u
 
 
 class ActuatorStepper:

@@ -1,0 +1,218 @@
+"""Command line: ``mr-suspension <command>``; run ``mr-suspension --help`` for the list."""
+
+import argparse
+import importlib
+import json
+from pathlib import Path
+import sys
+import time
+
+from mr_suspension.core import config, road as roads
+from mr_suspension.core.metrics import ride_metrics
+from mr_suspension.core.simulator import CornerConfig, simulate
+
+# Subcommands contributed by the other parts of the package (each has register(subparsers)).
+PLUGINS = ('mr_suspension.identification.cli', 'mr_suspension.evaluation.cli',
+           'mr_suspension.nodes.cli')
+
+METRIC_LABELS = {
+    'body_acc_rms': ('body acc. RMS', 'm/s²'),
+    'body_acc_peak': ('body acc. peak', 'm/s²'),
+    'body_acc_wk_rms': ('Wk-weighted acc. RMS', 'm/s²'),
+    'vdv': ('VDV', 'm/s^1.75'),
+    'working_space_rms': ('working space RMS', 'm'),
+    'working_space_peak': ('working space peak', 'm'),
+    'tyre_load_rms': ('dyn. tyre load RMS', 'N'),
+    'ntf_min': ('min. normalised tyre force', '-'),
+    'lift_off_fraction': ('tyre lift-off fraction', '-'),
+    'displacement_difference_peak': ('peak z_s - z_u (seed 003)', 'm'),
+    'settling_time': ('settling time', 's'),
+}
+
+
+def _road_from_args(args, dt):
+    spec = {'type': args.road}
+    if args.road == 'iso8608':
+        spec.update(road_class=args.road_class, speed=args.speed, seed=args.seed)
+    elif args.road == 'bump':
+        spec.update(height=args.height, speed=args.speed)
+    elif args.road == 'step':
+        spec.update(height=args.height)
+    elif args.road == 'harmonic':
+        spec.update(amplitude=args.height, freq=args.freq)
+    elif args.road == 'sweep':
+        spec.update(amplitude=args.height)
+    return roads.from_spec(spec, duration=args.duration, dt=dt)
+
+
+def corner_from_args(args, controller=None):
+    """Build a :class:`CornerConfig` from the common ``--vehicle/--damper/...`` options."""
+    return CornerConfig(car=config.load_vehicle(args.vehicle),
+                        damper=config.load_damper(args.damper),
+                        driver=config.load_driver(args.driver),
+                        controller=config.load_controller(controller or args.controller),
+                        dt=args.dt, control_delay=args.control_delay)
+
+
+def add_corner_options(p):
+    """Add the options that select vehicle, damper, driver, controller and time step."""
+    p.add_argument('--vehicle', default='city_car',
+                   help='vehicle set in config/vehicles or a YAML path (default: %(default)s)')
+    p.add_argument('--damper', default='rd1005_bingham',
+                   help='damper set in config/dampers or a YAML path (default: %(default)s)')
+    p.add_argument('--driver', default='wonder_box',
+                   help='driver set in config/drivers or a YAML path (default: %(default)s)')
+    p.add_argument('--controller', default='skyhook_onoff',
+                   help='controller set in config/controllers or a YAML path '
+                        '(default: %(default)s)')
+    p.add_argument('--dt', type=float, default=1e-3, help='time step [s] (default: 1 kHz)')
+    p.add_argument('--control-delay', type=float, default=0.0,
+                   help='sensor and compute delay before the driver [s]')
+
+
+def add_road_options(p):
+    """Add the road options."""
+    p.add_argument('--road', default='bump',
+                   choices=['step', 'bump', 'iso8608', 'harmonic', 'sweep'],
+                   help='road excitation (default: %(default)s)')
+    p.add_argument('--road-class', default='C', help='ISO 8608 class A..H (default: C)')
+    p.add_argument('--speed', type=float, default=15.0, help='vehicle speed [m/s]')
+    p.add_argument('--height', type=float, default=0.05,
+                   help='step/bump height or harmonic/sweep amplitude [m]')
+    p.add_argument('--freq', type=float, default=1.5, help='harmonic frequency [Hz]')
+    p.add_argument('--duration', type=float, default=10.0, help='simulated time [s]')
+    p.add_argument('--seed', type=int, default=0, help='random road seed')
+
+
+def metrics_table(rows, title=''):
+    """Return a Markdown table of metrics: ``rows`` maps a label to a metrics dict."""
+    labels = list(rows)
+    keys = [k for k in METRIC_LABELS if all(k in rows[lab] for lab in labels)]
+    out = [f'### {title}', ''] if title else []
+    out.append('| metric | unit | ' + ' | '.join(labels) + ' |')
+    out.append('|---|---|' + '---|' * len(labels))
+    for k in keys:
+        name, unit = METRIC_LABELS[k]
+        out.append(f'| {name} | {unit} | ' + ' | '.join(f'{rows[lab][k]:.4g}' for lab in labels)
+                   + ' |')
+    return '\n'.join(out) + '\n'
+
+
+def run_comparison(cfgs, road, out, stem):
+    """Simulate labelled configs on one road; write CSV, PNG and metrics; return metrics."""
+    from mr_suspension import plots
+    results = {label: simulate(cfg, road) for label, cfg in cfgs.items()}
+    t_event = 0.5 if road.name in ('step', 'bump') else 0.0
+    metrics = {label: ride_metrics(res, t_event) for label, res in results.items()}
+    for label, res in results.items():
+        res.to_csv(out / f'{stem}_{label}.csv')
+    plots.time_histories(results, out / f'{stem}_time.png', title=f'{stem}: {road.name}')
+    plots.damper_loops(results, out / f'{stem}_damper.png')
+    return metrics
+
+
+def cmd_simulate(args):
+    """Simulate one corner (and a passive reference) and write CSV, plots and metrics."""
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = corner_from_args(args)
+    cfgs = {args.controller: cfg}
+    if args.reference and args.reference != args.controller:
+        cfgs[args.reference] = cfg.replace(controller=config.load_controller(args.reference))
+    road = _road_from_args(args, cfg.dt)
+    t0 = time.perf_counter()
+    metrics = run_comparison(cfgs, road, out, args.road)
+    elapsed = time.perf_counter() - t0
+    table = metrics_table(metrics, f'{road.name}, {road.duration:g} s')
+    (out / 'metrics.md').write_text(table)
+    (out / 'metrics.json').write_text(json.dumps(metrics, indent=2))
+    print(table)
+    print(f'wrote {out}/ ({len(cfgs)} runs of {road.duration:g} s in {elapsed:.2f} s)')
+    return 0
+
+
+def cmd_demo(args):
+    """Run the default scenario set: bump and ISO 8608 road, semi-active vs passive."""
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    base = CornerConfig(car=config.load_vehicle('city_car'),
+                        damper=config.load_damper('rd1005_bingham'),
+                        driver=config.load_driver('wonder_box'))
+    cfgs = {'passive_0A': base.replace(controller=config.load_controller('passive_0A')),
+            'passive_1A': base.replace(controller=config.load_controller('passive_1A')),
+            'skyhook_onoff': base.replace(controller=config.load_controller('skyhook_onoff'))}
+    scenarios = {'bump': roads.bump(height=0.05, length=2.0, speed=10.0, duration=5.0),
+                 'random': roads.iso8608('C', speed=20.0, duration=30.0, seed=1)}
+    lines = ['# mr_suspension demo', '',
+             'City-car corner, RD-1005-3 class damper (smooth Bingham), Wonder Box driver.', '']
+    for name, road in scenarios.items():
+        metrics = run_comparison(cfgs, road, out, name)
+        (out / f'{name}_metrics.json').write_text(json.dumps(metrics, indent=2))
+        lines.append(metrics_table(metrics, f'{name} ({road.name}, {road.duration:g} s)'))
+    text = '\n'.join(lines)
+    (out / 'metrics.md').write_text(text)
+    print(text)
+    if not args.no_nodes:
+        try:
+            nodes_cli = importlib.import_module('mr_suspension.nodes.cli')
+        except ModuleNotFoundError as exc:
+            if exc.name != 'mr_suspension.nodes.cli':
+                raise
+        else:
+            return nodes_cli.demo(out / 'nodes')
+    print(f'wrote {out}/')
+    return 0
+
+
+def build_parser():
+    """Return the argument parser with every subcommand."""
+    parser = argparse.ArgumentParser(
+        prog='mr-suspension',
+        description='Semi-active MR-damper quarter-car suspension: simulate, evaluate control '
+                    'laws, and diagnose what a damper model gets wrong on measured data.')
+    sub = parser.add_subparsers(dest='command', metavar='COMMAND')
+    sub.required = True
+
+    p = sub.add_parser('simulate', help='simulate one corner over a road',
+                       description='Simulate one quarter-car corner with the MR damper, '
+                                   'driver and controller over a road; write CSV time '
+                                   'histories, PNG plots and a metrics table.')
+    add_corner_options(p)
+    add_road_options(p)
+    p.add_argument('--reference', default='passive_0A',
+                   help='also run this controller set for comparison ("" for none)')
+    p.add_argument('--out', default='out/simulate', help='output directory')
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser('demo', help='default scenarios (bump and random road)',
+                       description='Run the default demo: bump and ISO 8608 class C road, '
+                                   'skyhook vs passive at 0 A and 1 A; then the ROS 2 node '
+                                   'set with a recorded bag when available.')
+    p.add_argument('--out', default='out/demo', help='output directory')
+    p.add_argument('--no-nodes', action='store_true', help='skip the ROS 2 node-set run')
+    p.set_defaults(func=cmd_demo)
+
+    for name in PLUGINS:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+            continue
+        module.register(sub)
+    return parser
+
+
+def main(argv=None):
+    """Entry point of ``mr-suspension``."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f'mr-suspension {args.command}: error: {exc}', file=sys.stderr)
+        return 2
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Evaluation of semi-active control laws: scenarios, runner, tables, plots, seed reproductions."""

@@ -1,0 +1,263 @@
+"""``mr-suspension evaluate``: run control laws over scenarios, write tables, plots and studies.
+
+``register(subparsers)`` adds the subcommand to the package CLI; ``main()`` runs it stand-alone
+(``python -m mr_suspension.evaluation.cli --help``).
+"""
+
+import argparse
+import json
+import math
+from pathlib import Path
+import sys
+import time
+
+import numpy as np
+import yaml
+
+from mr_suspension.control.laws import LAW_IDS
+from mr_suspension.core import config as cfg
+from mr_suspension.evaluation import plots, runner, scenarios as scn, studies, tables
+
+STUDIES = ('frequency', 'tradeoff', 'seeds', 'bounds', 'degradation', 'estimator')
+
+EPILOG = """\
+laws: controller sets of config/controllers ({sets}) or bare law names ({laws}).
+scenarios: step, bump, sweep, iso_<A..H>_<speed m/s>, harmonic_<Hz>, or the groups
+  {groups}.
+studies (--study, comma separated or 'all'): {studies}.
+
+examples:
+  mr-suspension evaluate --laws passive_0A,skyhook,pdd --scenarios quick
+  mr-suspension evaluate --scenarios iso --set skyhook.c_sky=3000 --set '*.estimation=ideal'
+  mr-suspension evaluate --actuator-scale 2 --delay 0.01 --study degradation,bounds
+"""
+
+
+def _parse_sets(items):
+    out = {}
+    for item in items or []:
+        if '=' not in item or '.' not in item.split('=', 1)[0]:
+            raise ValueError(f'--set expects law.param=value, got {item!r}')
+        key, value = item.split('=', 1)
+        law, param = key.split('.', 1)
+        out.setdefault(law, {})[param] = yaml.safe_load(value)
+    return out
+
+
+def _laws(text):
+    if text in (None, '', 'all'):
+        return list(runner.DEFAULT_LAWS)
+    return [s.strip() for s in text.split(',') if s.strip()]
+
+
+def add_arguments(parser):
+    """Add the evaluate options to ``parser``."""
+    parser.add_argument('--laws', default='all',
+                        help='comma-separated controller sets or law names (default: all '
+                             'sets: %(default)s)')
+    parser.add_argument('--scenarios', default='quick',
+                        help='comma-separated scenarios or groups (default: %(default)s)')
+    parser.add_argument('--vehicle', default='seed003_passenger',
+                        help='config/vehicles name or YAML path (default: %(default)s)')
+    parser.add_argument('--damper', default='rd1005_bingham',
+                        help='config/dampers name or YAML path (default: %(default)s)')
+    parser.add_argument('--driver', default='wonder_box',
+                        help='config/drivers name or YAML path (default: %(default)s)')
+    parser.add_argument('--delay', type=float, default=0.0,
+                        help='sensor + compute delay before the driver [s] (default: 0)')
+    parser.add_argument('--actuator-scale', type=float, default=1.0,
+                        help='multiply driver and fluid time constants and dead time '
+                             '(0 = ideal actuator; default: 1)')
+    parser.add_argument('--estimation', choices=('sensors', 'ideal'), default=None,
+                        help='velocity source for all laws (default: as in each set, '
+                             'i.e. sensors)')
+    parser.add_argument('--set', action='append', default=[], metavar='LAW.PARAM=VALUE',
+                        help="override a gain, e.g. skyhook.c_sky=3000; '*' for all laws "
+                             '(repeatable)')
+    parser.add_argument('--reference', default='passive_0A',
+                        help='law the relative table compares with (default: %(default)s)')
+    parser.add_argument('--study', default='tradeoff',
+                        help="extra studies, comma separated or 'all' "
+                             f"({', '.join(STUDIES)}; default: %(default)s; 'none' for none)")
+    parser.add_argument('--dt', type=float, default=1e-3, help='step [s] (default: 1e-3)')
+    parser.add_argument('--no-plots', action='store_true', help='tables only')
+    parser.add_argument('--out', default='evaluation_out',
+                        help='output directory (default: %(default)s)')
+    return parser
+
+
+def register(subparsers):
+    """Add the ``evaluate`` subcommand to an argparse subparsers object."""
+    epilog = EPILOG.format(sets=', '.join(_safe_sets()), laws=', '.join(sorted(LAW_IDS)),
+                           groups=', '.join(sorted(scn.GROUPS)), studies=', '.join(STUDIES))
+    parser = subparsers.add_parser(
+        'evaluate', help='compare semi-active control laws over road scenarios',
+        description='Run control laws through the offline simulator (driver, fluid and '
+                    'sensor-based estimation in the loop) and write a metrics table (RMS and '
+                    'Wk-weighted body acceleration, VDV, working space RMS/peak, dynamic tyre '
+                    'load RMS, settling time), plots and optional studies.',
+        epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    parser.set_defaults(func=run_evaluate)
+    return parser
+
+
+def _safe_sets():
+    try:
+        return cfg.available('controllers')
+    except (FileNotFoundError, OSError):
+        return []
+
+
+def _studies(text):
+    if text in (None, '', 'none'):
+        return []
+    if text == 'all':
+        return list(STUDIES)
+    items = [s.strip() for s in text.split(',') if s.strip()]
+    bad = sorted(set(items) - set(STUDIES))
+    if bad:
+        raise ValueError(f'unknown study {bad}; known: {STUDIES}')
+    return items
+
+
+def _fmt_rows(rows, keys, scale=None):
+    scale = scale or {}
+    head = '| ' + ' | '.join(keys) + ' |'
+    lines = [head, '|' + '---|' * len(keys)]
+    for r in rows:
+        cells = []
+        for k in keys:
+            v = r.get(k, '')
+            if isinstance(v, float):
+                v = v * scale.get(k, 1.0)
+                cells.append(f'{v:.4g}' if math.isfinite(v) else ('inf' if v > 0 else '-'))
+            else:
+                cells.append(str(v))
+        lines.append('| ' + ' | '.join(cells) + ' |')
+    return '\n'.join(lines)
+
+
+def run_evaluate(args, log=print):
+    """Run the evaluation described by parsed ``args``; returns the metric rows."""
+    laws = _laws(args.laws)
+    overrides = _parse_sets(args.set)
+    if args.estimation:
+        overrides.setdefault('*', {})['estimation'] = args.estimation
+    names = scn.expand(args.scenarios)
+    studies_ = _studies(args.study)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    common = {'vehicle': args.vehicle, 'damper': args.damper, 'driver': args.driver}
+    t0 = time.perf_counter()
+    rows, kept = runner.run(laws, names, control_delay=args.delay,
+                            actuator_scale=args.actuator_scale, overrides=overrides, dt=args.dt,
+                            keep=True, **common)
+    report = ['# Evaluation', '', f'vehicle {args.vehicle}, damper {args.damper}, driver '
+              f'{args.driver} (x{args.actuator_scale:g}), delay {1e3 * args.delay:g} ms', '',
+              tables.markdown(rows)]
+    rel = tables.relative(rows, args.reference)
+    report += ['', f'Change relative to {args.reference} [%]:', '',
+               tables.markdown(rel, percent=True)]
+    tables.write_csv(rows, out / 'metrics.csv')
+    log(tables.markdown(rows))
+    if not args.no_plots:
+        for name in names:
+            sc_kind = scn.make(name, args.dt).kind
+            if sc_kind == 'transient':
+                plots.time_histories({law: kept[(law, name)] for law in laws},
+                                     out / f'time_{name}.png', f'{name}', t_max=6.0)
+    if 'tradeoff' in studies_ and not args.no_plots:
+        ref = 'iso_C_20' if 'iso_C_20' in names else names[-1]
+        sweep = runner.passive_sweep(np.linspace(0.0, 2.0, 21), ref, args.vehicle, args.damper)
+        sweep['label'] = 'passive 0..2 A'
+        plots.tradeoff(rows, out / f'tradeoff_{ref}.png', sweep, ref,
+                       f'comfort vs working space and road holding, {ref}')
+    if 'frequency' in studies_:
+        freqs = np.geomspace(0.5, 20.0, 18)
+        fam = {}
+        for law in laws:
+            conf = runner.build_config(law, control_delay=args.delay,
+                                       actuator_scale=args.actuator_scale, overrides=overrides,
+                                       dt=args.dt, **common)
+            fam[law] = (freqs, plots.measured_response(conf, freqs, 0.005))
+        if not args.no_plots:
+            plots.response_figure(fam, out / 'frequency_response.png',
+                                  'rig-style frequency responses, 5 mm road')
+    if 'seeds' in studies_:
+        from mr_suspension.evaluation import seeds
+        r1 = seeds.seed001_reproduction(None if args.no_plots else out)
+        report += ['', '## Seed 001', '', 'C_eq [N s/m] per current (rows 0..0.5 A) and '
+                   'frequency (0.4..3.6 Hz):', '', '```', np.array2string(np.round(r1['ceq'])),
+                   '```', '']
+        for key in ('claims_linear', 'claims_simulated'):
+            report.append(f'{key}:')
+            report += [f'- {"AGREES" if ok else "DIFFERS"}: {text} ({detail})'
+                       for text, ok, detail in r1[key]]
+        r3 = seeds.seed003_reproduction(laws=[law for law in laws if law != 'passive_0A'][:3],
+                                        out_dir=None if args.no_plots else out)
+        report += ['', '## Seed 003', '', _fmt_rows(seeds.seed003_summary(r3), [
+            'road', 'passive_peak_cm', 'sa_peak_cm', 'reported_sa_peak_cm', 'improvement_ours',
+            'improvement_reported', 'body_acc_rms_change', 'passive_settle', 'sa_settle']), '',
+            _fmt_rows(r3, ['road', 'suspension', 'stroke_peak', 'settling_time',
+                           'body_acc_rms', 'body_acc_peak', 'tyre_load_rms'],
+                      {'stroke_peak': 100.0})]
+    if 'bounds' in studies_:
+        best, _, _ = studies.best_passive('iso_C_20', args.vehicle, args.damper)
+        report += ['', '## Best passive settings (iso_C_20)', '',
+                   _fmt_rows([{'index': k, 'best current [A]': v['current'][0],
+                               'value': v['current'][1], 'best linear c [N s/m]':
+                               v['linear'][0], 'value (linear)': v['linear'][1]}
+                              for k, v in best.items()],
+                             ['index', 'best current [A]', 'value', 'best linear c [N s/m]',
+                              'value (linear)'])]
+        bc = studies.bound_comparison(laws, 'bump', driver=args.driver,
+                                      vehicle=args.vehicle, damper=args.damper)
+        report += ['', '## Laws vs best passive and the offline semi-active reference (bump)',
+                   '', _fmt_rows(bc, ['objective', 'law', 'value', 'closeness'])]
+    if 'degradation' in studies_:
+        rs, rdl = studies.degradation(laws, 'iso_C_20', **common)
+        report += ['', '## Degradation with actuator speed (iso_C_20)', '',
+                   _fmt_rows(rs, ['law', 'scale', 'body_acc_wk_rms', 'working_space_rms',
+                                  'tyre_load_rms'], {'working_space_rms': 1e3}), '',
+                   '## Degradation with sensor + compute delay (iso_C_20)', '',
+                   _fmt_rows(rdl, ['law', 'delay', 'body_acc_wk_rms', 'working_space_rms',
+                                   'tyre_load_rms'], {'working_space_rms': 1e3,
+                                                      'delay': 1e3})]
+        if not args.no_plots:
+            scales = sorted({r['scale'] for r in rs})
+            plots.lines(scales, {law: [r['body_acc_wk_rms'] for r in rs if r['law'] == law]
+                                 for law in laws}, out / 'degradation_actuator.png',
+                        'actuator time-constant scale (1 = Wonder Box + fluid)',
+                        'Wk body acceleration RMS [m/s^2]', 'iso_C_20')
+    if 'estimator' in studies_:
+        er = studies.estimator_delays()
+        report += ['', '## Estimator delays (positive = lag)', '', _fmt_rows(er, list(er[0]))]
+        report += ['', f'body-velocity error after 60 s of a 0.05 m/s^2 accelerometer bias: '
+                   f'{studies.bias_drift():.4f} m/s (bound 0.05 / (2 pi 0.1) = '
+                   f'{0.05 / (2 * math.pi * 0.1):.4f} m/s)']
+    (out / 'report.md').write_text('\n'.join(report) + '\n', encoding='utf-8')
+    (out / 'metrics.json').write_text(json.dumps(rows, indent=1), encoding='utf-8')
+    log(f'wrote {out}/report.md, metrics.csv, metrics.json and figures '
+        f'in {time.perf_counter() - t0:.1f} s')
+    return rows
+
+
+def main(argv=None):
+    """Stand-alone entry point: ``python -m mr_suspension.evaluation.cli [options]``."""
+    parser = argparse.ArgumentParser(prog='mr-suspension')
+    sub = parser.add_subparsers(dest='command', required=True)
+    register(sub)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] != 'evaluate':
+        argv = ['evaluate'] + argv
+    args = parser.parse_args(argv)
+    try:
+        args.func(args)
+    except (ValueError, FileNotFoundError) as exc:
+        parser.error(str(exc))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

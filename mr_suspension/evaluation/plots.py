@@ -1,0 +1,138 @@
+"""Evaluation figures (matplotlib, Agg backend): time histories, frequency responses, trade-off.
+
+Frequency responses of a (nonlinear, controlled) corner are measured like on a rig: a harmonic
+road of amplitude ``A`` at each frequency, the steady-state first-harmonic amplitude of the
+output over the last periods (:func:`~mr_suspension.core.metrics.sine_gain`) divided by ``A``
+(seed 001 Figs 7-10: body acceleration gain, body amplitude gain, working space gain and
+normalised tyre force gain).
+"""
+
+import math
+
+import matplotlib
+import numpy as np
+
+from mr_suspension.core import road as rd
+from mr_suspension.core.metrics import sine_gain
+from mr_suspension.core.simulator import simulate
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402, I100  (backend must be chosen first)
+
+MARKERS = ('o', 's', '^', 'v', 'D', 'P', 'X', '*', '<', '>', 'h', 'p')
+RESPONSES = (('acc', 'body acceleration gain [1/s^2]'), ('z_s', 'body amplitude gain [-]'),
+             ('stroke', 'working space gain [-]'), ('ntf', 'NTF gain [1/m]'))
+
+
+def measured_response(config, freqs, amplitude=0.01, periods=4, settle=3.0):
+    """Rig-style first-harmonic gains of a corner per unit road amplitude (module doc).
+
+    Returns a dict of arrays keyed like :data:`RESPONSES`.
+    """
+    if amplitude <= 0.0 or not math.isfinite(amplitude):
+        raise ValueError('measured_response: amplitude must be > 0')
+    out = {k: [] for k, _ in RESPONSES}
+    f_t0 = config.car.static_tyre_load
+    for f in freqs:
+        duration = settle + periods / f
+        road = rd.harmonic(amplitude, f, duration=duration, dt=config.dt)
+        res = simulate(config, road)
+        t = res.t
+        out['acc'].append(sine_gain(t, res.a_s, f, periods) / amplitude)
+        out['z_s'].append(sine_gain(t, res.z_s, f, periods) / amplitude)
+        out['stroke'].append(sine_gain(t, res.stroke, f, periods) / amplitude)
+        out['ntf'].append(sine_gain(t, res.f_t / f_t0, f, periods) / amplitude)
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def response_figure(families, path, title=''):
+    """Four-panel frequency-response figure; ``families``: ``{label: (freqs, responses)}``.
+
+    ``responses`` is a dict keyed like :data:`RESPONSES`; a label starting with ``'~'`` is
+    drawn dashed (e.g. the linear closed form next to the simulated curve).
+    """
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7))
+    for ax, (key, ylabel) in zip(axes.ravel(), RESPONSES):
+        for label, (freqs, resp) in families.items():
+            style = '--' if label.startswith('~') else '-'
+            ax.semilogy(freqs, resp[key], style, label=label.lstrip('~'))
+        ax.set_xlabel('frequency [Hz]')
+        ax.set_ylabel(ylabel)
+        ax.grid(True, which='both', alpha=0.3)
+    axes[0, 0].legend(fontsize=7)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def time_histories(results, path, title='', t_max=None):
+    """Body displacement and acceleration, stroke and current command of several runs.
+
+    ``results``: ``{label: SimResult}``.
+    """
+    fig, axes = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
+    chans = (('z_s', 'z_s [mm]', 1e3), ('a_s', 'a_s [m/s^2]', 1.0), ('stroke', 'x [mm]', 1e3),
+             ('i_cmd', 'i_cmd [A]', 1.0))
+    for label, res in results.items():
+        t = res.t
+        sel = t <= t_max if t_max else slice(None)
+        for ax, (ch, _, scale) in zip(axes, chans):
+            ax.plot(t[sel], getattr(res, ch)[sel] * scale, lw=0.9, label=label)
+    for ax, (_, ylabel, _) in zip(axes, chans):
+        ax.set_ylabel(ylabel)
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel('time [s]')
+    axes[0].legend(fontsize=7, ncol=3)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def tradeoff(rows, path, passive=None, scenario=None, title=''):
+    """Comfort (Wk RMS) against working space RMS and dynamic tyre load RMS.
+
+    ``rows``: metric rows of the laws; ``passive``: optional dict of metric arrays of a
+    passive sweep (drawn as the passive trade-off curve) with a ``label`` entry.
+    """
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    sel = [r for r in rows if scenario is None or r['scenario'] == scenario]
+    for ax, key, xlabel, scale in ((axes[0], 'working_space_rms', 'working space RMS [mm]',
+                                    1e3),
+                                   (axes[1], 'tyre_load_rms', 'dynamic tyre load RMS [N]', 1.0)):
+        if passive is not None:
+            ax.plot(np.asarray(passive[key]) * scale, passive['body_acc_wk_rms'], 'k.-',
+                    lw=0.8, label=passive.get('label', 'passive'))
+        for k, r in enumerate(sel):
+            ax.plot(r[key] * scale, r['body_acc_wk_rms'], MARKERS[k % len(MARKERS)],
+                    label=r['law'])
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel('Wk body acceleration RMS [m/s^2]')
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=7, ncol=2)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def lines(xs, series, path, xlabel, ylabel, title='', logx=False):
+    """Draw a simple line figure: ``series`` is ``{label: y}`` over ``xs``."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for label, ys in series.items():
+        ax.plot(xs, ys, 'o-', label=label)
+    if logx:
+        ax.set_xscale('symlog', linthresh=0.5)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,158 @@
+"""Run control laws over scenarios and collect the ride metrics (pure numerics, no ROS).
+
+A *law* is a controller parameter set of ``config/controllers`` (e.g. ``skyhook``) or a bare
+law name of :data:`~mr_suspension.control.laws.LAW_IDS`; ``overrides`` such as
+``{'skyhook': {'c_sky': 3000}}`` or ``{'*': {'estimation': 'ideal'}}`` change gains. The
+controller gets the plant knowledge of the simulated corner
+(:meth:`~mr_suspension.control.laws.ControllerParams.with_plant`). ``actuator_scale`` multiplies
+every time constant and the dead time of the driver and fluid (0 = ideal actuator) and
+``control_delay`` adds the sensor and compute latency [s].
+"""
+
+from dataclasses import replace
+import math
+
+import numpy as np
+
+from mr_suspension.control.laws import ControllerParams, LAW_IDS
+from mr_suspension.core import config as cfg
+from mr_suspension.core.driver import DriverParams
+from mr_suspension.core.metrics import ride_metrics
+from mr_suspension.core.simulator import CornerConfig, simulate, simulate_batch
+from mr_suspension.evaluation import scenarios as scn
+
+METRICS = ('body_acc_rms', 'body_acc_wk_rms', 'vdv', 'working_space_rms', 'working_space_peak',
+           'tyre_load_rms', 'settling_time')
+DEFAULT_LAWS = ('passive_0A', 'passive_1A', 'skyhook_onoff', 'skyhook', 'groundhook', 'hybrid',
+                'add', 'sh_add', 'pdd', 'clipped_optimal', 'febc')
+
+
+def _load(kind, loader, value):
+    return value if not isinstance(value, str) else loader(value)
+
+
+def scaled_driver(driver, scale):
+    """Driver with all lags and the dead time multiplied by ``scale`` (>= 0)."""
+    if not (math.isfinite(scale) and scale >= 0.0):
+        raise ValueError(f'actuator scale must be a finite number >= 0, got {scale!r}')
+    return replace(driver, tau_rise=driver.tau_rise * scale, tau_fall=driver.tau_fall * scale,
+                   dead_time=min(driver.dead_time * scale, 0.25),
+                   fluid_tau_rise=driver.fluid_tau_rise * scale,
+                   fluid_tau_fall=driver.fluid_tau_fall * scale)
+
+
+def controller_for(law, overrides=None):
+    """Return the controller parameters of a named set or law, with ``overrides`` applied."""
+    if isinstance(law, ControllerParams):
+        ctrl = law
+        name = law.law
+    elif law in cfg.available('controllers'):
+        ctrl = cfg.load_controller(law)
+        name = law
+    elif law in LAW_IDS:
+        ctrl = ControllerParams(law=law)
+        name = law
+    else:
+        raise ValueError(f'unknown law {law!r}; controller sets: {cfg.available("controllers")}'
+                         f', laws: {sorted(LAW_IDS)}')
+    overrides = overrides or {}
+    changes = dict(overrides.get('*', {}))
+    changes.update(overrides.get(name, {}))
+    if changes:
+        try:
+            ctrl = ControllerParams.from_dict({**ctrl.to_dict(), **changes})
+        except TypeError as exc:
+            raise ValueError(str(exc)) from None
+    return ctrl
+
+
+def build_config(law, vehicle='seed003_passenger', damper='rd1005_bingham', driver='wonder_box',
+                 control_delay=0.0, actuator_scale=1.0, overrides=None, dt=1e-3):
+    """Corner configuration of ``law`` on the given vehicle, damper and driver (names/objects)."""
+    car = _load('vehicles', cfg.load_vehicle, vehicle)
+    dmp = _load('dampers', cfg.load_damper, damper)
+    drv = _load('drivers', cfg.load_driver, driver)
+    if not isinstance(drv, DriverParams):
+        raise ValueError('driver must be a DriverParams or a config/drivers name')
+    drv = scaled_driver(drv, actuator_scale)
+    ctrl = controller_for(law, overrides).with_plant(car, dmp, drv)
+    return CornerConfig(car=car, damper=dmp, driver=drv, controller=ctrl, dt=dt,
+                        control_delay=control_delay)
+
+
+def run(laws=DEFAULT_LAWS, scenarios=('quick',), vehicle='seed003_passenger',
+        damper='rd1005_bingham', driver='wonder_box', control_delay=0.0, actuator_scale=1.0,
+        overrides=None, dt=1e-3, keep=False):
+    """Simulate every law on every scenario; return a list of row dicts (and results if keep).
+
+    Each row: ``law``, ``scenario`` and the :data:`METRICS` (SI units). With ``keep`` a dict
+    ``{(law, scenario): SimResult}`` is returned as well.
+    """
+    names = scn.expand(scenarios)
+    roads = [scn.make(n, dt) for n in names]
+    rows = []
+    kept = {}
+    for law in laws:
+        config = build_config(law, vehicle, damper, driver, control_delay, actuator_scale,
+                              overrides, dt)
+        label = law if isinstance(law, str) else law.law
+        for sc in roads:
+            res = simulate(config, sc.road)
+            met = ride_metrics(res, t_event=sc.t_event)
+            row = {'law': label, 'scenario': sc.name}
+            row.update({k: met[k] for k in METRICS})
+            if sc.kind != 'transient':
+                row['settling_time'] = float('nan')
+            row['i_mean'] = float(np.mean(res.i_cmd))
+            rows.append(row)
+            if keep:
+                kept[(label, sc.name)] = res
+    return (rows, kept) if keep else rows
+
+
+def batch_metrics(configs, road):
+    """Online metrics of many configurations on one road (parallel, no time histories)."""
+    return simulate_batch(configs, [road])
+
+
+def passive_sweep(values, scenario='iso_C_20', vehicle='seed003_passenger',
+                  damper='rd1005_bingham', dt=1e-3, kind='current'):
+    """Metrics of passive settings: constant currents of the MR damper or linear dampers.
+
+    ``kind='current'``: ``values`` are currents [A] with the damper ``damper`` and an ideal
+    driver; ``kind='linear'``: ``values`` are viscous coefficients [N s/m] of a linear damper.
+    Returns the dict of metric arrays of :func:`~mr_suspension.core.simulator.simulate_batch`.
+    """
+    from mr_suspension.core.damper import LinearDamperParams
+    sc = scn.make(scenario, dt)
+    configs = []
+    for val in values:
+        if kind == 'current':
+            configs.append(build_config(ControllerParams(law='constant', current=float(val)),
+                                        vehicle, damper, 'ideal', dt=dt))
+        elif kind == 'linear':
+            configs.append(build_config(ControllerParams(law='constant'), vehicle,
+                                        LinearDamperParams(c=float(val)), 'ideal', dt=dt))
+        else:
+            raise ValueError("passive_sweep: kind must be 'current' or 'linear'")
+    return batch_metrics(configs, sc.road)
+
+
+def tune(law, param, values, scenario='iso_C_20', objective='body_acc_wk_rms',
+         vehicle='seed003_passenger', damper='rd1005_bingham', driver='wonder_box',
+         control_delay=0.0, dt=1e-3, overrides=None):
+    """Grid search of one gain; returns ``(best_value, values, objective_values, metrics)``."""
+    values = list(values)
+    if not values:
+        raise ValueError('tune: no values')
+    sc = scn.make(scenario, dt)
+    configs = []
+    for val in values:
+        ov = {k: dict(v) for k, v in (overrides or {}).items()}
+        ov.setdefault(law, {})[param] = val
+        configs.append(build_config(law, vehicle, damper, driver, control_delay, 1.0, ov, dt))
+    met = batch_metrics(configs, sc.road)
+    if objective not in met:
+        raise ValueError(f'tune: objective must be one of {sorted(met)}')
+    obj = met[objective]
+    return values[int(np.argmin(obj))], values, obj, met

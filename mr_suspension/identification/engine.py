@@ -1,0 +1,466 @@
+"""Separable fits of baseline-plus-effects models with blocked cross-validation.
+
+Every candidate model is linear in ``theta = (F0, c0, c1, fy0, fy1[, kg1, kg2])`` once its few
+nonlinear parameters ``eta`` (``v_y``, dead time, time constants, ``i_s``, ``x_h``, ``k1``,
+``kappa``, ``tau_th``, ``rho``) are fixed: the regressors are the intermediates ``u, y, M, g``
+of ``core.extended.extended_force`` run along the record (so the fit and the simulator share
+one force law), ``F = F0 + kg1 x + kg2 x^2 + c0 M u + c1 M i u + fy0 M y + fy1 M g y``.
+Series stiffness and thermal fade make ``u`` and ``M`` depend on ``theta``; they are
+computed with the current best ``theta`` and iterated (fixed point).
+
+Each record is cut into ``4 K`` contiguous blocks, dealt to ``K`` folds in turn (so every
+fold sees every part of the test programme); ``gap`` seconds at each block edge are dropped,
+so training and held-out samples are at least ``2 gap`` apart. Per fold we keep the
+Gram matrix ``X'X``, ``X'F`` and ``F'F``; fold ``k`` trains on all blocks but ``k`` and is
+scored on block ``k`` by quadratic forms, which makes K-fold held-out errors nearly free. The
+nonlinear parameters of fold ``k`` are those with the least *training* error among all the
+visited grid points, so no held-out sample influences its own prediction. States are run
+through the whole record (held-out blocks included) from the input signals only.
+"""
+
+import math
+
+from numba import njit
+import numpy as np
+
+from mr_suspension.core.extended import ExtendedDamperParams, simulate_extended
+
+EFFECTS = ('current_delay', 'current_lag', 'current_lag_asymmetric', 'current_saturation',
+           'hysteresis', 'series_stiffness', 'gas_spring', 'thermal_fade', 'direction_asymmetry')
+EFFECT_PARAMS = {
+    'current_delay': ('dead_time',),
+    'current_lag': ('tau_lag',),
+    'current_lag_asymmetric': ('tau_rise', 'tau_fall'),
+    'current_saturation': ('i_sat',),
+    'hysteresis': ('x_h',),
+    'series_stiffness': ('k_series',),
+    'gas_spring': (),
+    'thermal_fade': ('kappa', 'tau_thermal'),
+    'direction_asymmetry': ('rho',),
+}
+FORCE_DEPENDENT = ('series_stiffness', 'thermal_fade')
+THETA_NAMES = ('f0', 'c0', 'c1', 'fy0', 'fy1')
+GAS_NAMES = ('k_gas1', 'k_gas2')
+
+
+@njit(cache=True)
+def field_current(u, dt, dead_time, tau_rise, tau_fall):
+    """Current dynamics as in core.driver: exact-ZOH lag then a dead time, from rest at u[0].
+
+    ``y += (1 - exp(-dt/tau)) (u - y)``, ``tau = tau_rise`` if ``u > y`` else ``tau_fall``
+    (0 = no lag), then ``i[k] = y[k - round(dead_time/dt)]`` (seed 000, Fig. 9).
+    """
+    n = u.shape[0]
+    lag = np.empty(n)
+    ar = 1.0 - math.exp(-dt / tau_rise) if tau_rise > 0.0 else 1.0
+    af = 1.0 - math.exp(-dt / tau_fall) if tau_fall > 0.0 else 1.0
+    y = u[0]
+    for k in range(n):
+        a = ar if u[k] > y else af
+        y += a * (u[k] - y)
+        lag[k] = y
+    nd = int(dead_time / dt + 0.5)
+    out = np.empty(n)
+    for k in range(n):
+        out[k] = lag[k - nd] if k >= nd else lag[0]
+    return out
+
+
+class Dataset:
+    """Concatenated records with block/fold structure and the scales used by the grids."""
+
+    def __init__(self, records, n_folds=5, gap=0.1, blocks_per_fold=4):
+        if n_folds < 2:
+            raise ValueError('n_folds must be >= 2')
+        self.records = list(records)
+        self.n_folds = n_folds
+        self.force = np.concatenate([r.force for r in self.records])
+        self.slices = []
+        fold = []
+        start = 0
+        for r in self.records:
+            self.slices.append(slice(start, start + r.n))
+            start += r.n
+            nb = n_folds * blocks_per_fold
+            edges = np.linspace(0, r.n, nb + 1).astype(int)
+            g = int(min(gap / r.dt, 0.1 * (edges[1] - edges[0])))
+            f = np.full(r.n, -1)
+            for b in range(nb):
+                f[edges[b] + g:edges[b + 1] - g] = b % n_folds
+            fold.append(f)
+        self.fold = np.concatenate(fold)
+        self.order = np.argsort(self.fold, kind='stable')
+        counts = np.bincount(self.fold + 1, minlength=n_folds + 1)
+        self.bounds = np.cumsum(counts)
+        self.f_std = float(np.std(self.force))
+        x = np.concatenate([r.displacement for r in self.records])
+        v = np.concatenate([r.velocity for r in self.records])
+        i = np.concatenate([r.i_in for r in self.records])
+        self.v_ref = float(np.percentile(np.abs(v), 99)) or 1e-3
+        self.x_ref = float(np.percentile(np.abs(x - np.mean(x)), 99)) or 1e-3
+        self.f_ref = float(np.percentile(np.abs(self.force - np.mean(self.force)), 99)) or 1.0
+        self.i_max = float(np.max(np.abs(i))) or 1.0
+        self.t_max = max(r.duration for r in self.records)
+        self.e_ref = max(float(np.sum(np.abs(r.force * r.velocity)) * r.dt)
+                         for r in self.records) or 1.0
+        self.dt_min = min(r.dt for r in self.records)
+
+    def grid(self, name):
+        """Coarse search grid of a nonlinear parameter, scaled to the data."""
+        ms = 1e-3
+        if name == 'v_y':
+            return self.v_ref * np.logspace(-2.5, -0.2, 11)
+        if name == 'dead_time':
+            g = np.array([0, 2, 4, 7, 10, 15, 20, 30, 45, 60, 80]) * ms
+            return np.unique(np.round(g / self.dt_min) * self.dt_min)
+        if name == 'tau_lag':
+            return np.array([0.5, 1, 2, 4, 7, 12, 20, 35, 60, 100, 160]) * ms
+        if name in ('tau_rise', 'tau_fall'):
+            return np.array([0, 1, 2, 4, 7, 12, 20, 35, 60, 100, 160]) * ms
+        if name == 'i_sat':
+            return self.i_max * np.array([0.15, 0.25, 0.4, 0.6, 1.0, 1.6, 2.5, 4.0, 8.0])
+        if name == 'x_h':
+            return self.x_ref * np.logspace(-3, -0.3, 10)
+        if name == 'k_series':
+            return self.f_ref / self.x_ref * np.logspace(0.0, 3.0, 10)
+        if name == 'kappa':
+            return np.array([0.01, 0.02, 0.05, 0.1, 0.2, 0.35, 0.5]) / self.e_ref
+        if name == 'tau_thermal':
+            return self.t_max * np.array([0.3, 1.0, 3.0, 30.0])
+        if name == 'rho':
+            return np.linspace(-0.45, 0.45, 19)
+        raise KeyError(name)
+
+
+def neutral_eta():
+    """Nonlinear parameters with every effect off (v_y set by the search)."""
+    return {'v_y': 0.01, 'dead_time': 0.0, 'tau_lag': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0,
+            'i_sat': 0.0, 'x_h': 0.0, 'k_series': 0.0, 'kappa': 0.0, 'tau_thermal': 600.0,
+            'rho': 0.0}
+
+
+def current_dynamics(effects, eta):
+    """Map the model's current-dynamics parameters onto ``dead_time, tau_rise, tau_fall``."""
+    dead = eta['dead_time'] if 'current_delay' in effects else 0.0
+    if 'current_lag_asymmetric' in effects:
+        return {'dead_time': dead, 'tau_rise': eta['tau_rise'], 'tau_fall': eta['tau_fall']}
+    if 'current_lag' in effects:
+        return {'dead_time': dead, 'tau_rise': eta['tau_lag'], 'tau_fall': eta['tau_lag']}
+    return {'dead_time': dead, 'tau_rise': 0.0, 'tau_fall': 0.0}
+
+
+def damper_params(effects, eta, theta):
+    """Build ``ExtendedDamperParams`` from a model's effects, eta and theta."""
+    d = dict(zip(THETA_NAMES, theta[:5]))
+    d['v_y'] = eta['v_y']
+    if 'gas_spring' in effects:
+        d['k_gas1'], d['k_gas2'] = theta[5], theta[6]
+    if 'current_saturation' in effects:
+        d['i_sat'] = eta['i_sat']
+    if 'hysteresis' in effects:
+        d['x_h'] = eta['x_h']
+    if 'series_stiffness' in effects:
+        d['k_series'] = eta['k_series']
+    if 'thermal_fade' in effects:
+        d['kappa'] = eta['kappa']
+        d['tau_thermal'] = eta['tau_thermal']
+    if 'direction_asymmetry' in effects:
+        d['rho'] = eta['rho']
+    return ExtendedDamperParams(**{k: float(v) for k, v in d.items()})
+
+
+def simulate(record, params, dyn):
+    """Predicted force of a fitted model on a record: current dynamics then ``extended_force``."""
+    i_f = field_current(record.i_in, record.dt, dyn['dead_time'], dyn['tau_rise'],
+                        dyn['tau_fall'])
+    return simulate_extended(params.to_array(), record.displacement, record.velocity, i_f,
+                             record.dt)[0]
+
+
+def design(ds, effects, eta, theta_prev):
+    """Regressor matrix ``X`` (all records stacked) of a model at ``eta``."""
+    theta = np.zeros(7)
+    theta[:len(theta_prev)] = theta_prev
+    params = damper_params(effects, eta, theta)
+    dyn = current_dynamics(effects, eta)
+    p = params.to_array()
+    gas = 'gas_spring' in effects
+    cols = []
+    for r in ds.records:
+        i_f = field_current(r.i_in, r.dt, dyn['dead_time'], dyn['tau_rise'], dyn['tau_fall'])
+        _, u, y, m, g = simulate_extended(p, r.displacement, r.velocity, i_f, r.dt)
+        mu = m * u
+        my = m * y
+        c = [np.ones(r.n), mu, mu * i_f, my, my * g]
+        if gas:
+            c += [r.displacement, r.displacement ** 2]
+        cols.append(np.column_stack(c))
+    return np.vstack(cols)
+
+
+def _solve(g, h):
+    d = np.sqrt(np.maximum(np.diag(g), 1e-300))
+    gs = g / d[:, None] / d[None, :]
+    gs = gs + 1e-10 * np.eye(g.shape[0])
+    return np.linalg.solve(gs, h / d) / d
+
+
+class CVResult:
+    """Held-out and training errors of one model at one ``eta``."""
+
+    def __init__(self, ds, x, eta):
+        if not np.all(np.isfinite(x)):
+            # A diverged state (e.g. an absurd grid point): score it as infinitely bad.
+            k, p = ds.n_folds, x.shape[1]
+            self.eta = dict(eta)
+            self.theta = np.zeros(p)
+            self.sse = np.inf
+            self.n = np.ones(k)
+            self.theta_k = np.zeros((k, p))
+            self.train = np.full(k, np.inf)
+            self.test = np.full(k, np.inf)
+            return
+        xs = x[ds.order]
+        ys = ds.force[ds.order]
+        b = ds.bounds
+        k = ds.n_folds
+        p = x.shape[1]
+        gk = np.empty((k, p, p))
+        hk = np.empty((k, p))
+        ek = np.empty(k)
+        nk = np.empty(k)
+        for f in range(k):
+            xf = xs[b[f]:b[f + 1]]
+            yf = ys[b[f]:b[f + 1]]
+            gk[f] = xf.T @ xf
+            hk[f] = xf.T @ yf
+            ek[f] = yf @ yf
+            nk[f] = yf.size
+        gt, ht, et = gk.sum(0), hk.sum(0), ek.sum()
+        self.eta = dict(eta)
+        self.theta = _solve(gt, ht)
+        self.sse = float(et - 2 * self.theta @ ht + self.theta @ gt @ self.theta)
+        self.n = nk
+        self.theta_k = np.empty((k, p))
+        self.train = np.empty(k)
+        self.test = np.empty(k)
+        for f in range(k):
+            th = _solve(gt - gk[f], ht - hk[f])
+            self.theta_k[f] = th
+            self.test[f] = ek[f] - 2 * th @ hk[f] + th @ gk[f] @ th
+            self.train[f] = (et - ek[f]) - 2 * th @ (ht - hk[f]) + th @ (gt - gk[f]) @ th
+
+
+class FitResult:
+    """Fitted model: effects, all-data ``eta``/``theta``, per-fold held-out errors."""
+
+    def __init__(self, ds, effects, visited, best, x_best):
+        self.effects = tuple(effects)
+        self.eta = best.eta
+        self.theta = best.theta
+        self.sse = best.sse
+        k = ds.n_folds
+        self.test = np.empty(k)
+        self.eta_k = []
+        self.theta_k = []
+        for f in range(k):
+            r = min(visited, key=lambda r: r.train[f])
+            self.test[f] = r.test[f]
+            self.eta_k.append(r.eta)
+            self.theta_k.append(r.theta_k[f])
+        self.n_test = best.n
+        self.prediction = x_best @ self.theta
+        self.n_eval = len(visited)
+
+    @property
+    def heldout_mse(self):
+        """Pooled held-out mean squared error."""
+        return float(self.test.sum() / self.n_test.sum())
+
+    def params(self):
+        """Fitted ``ExtendedDamperParams`` (all data)."""
+        return damper_params(self.effects, self.eta, self.theta)
+
+    def dynamics(self):
+        """Fitted current dynamics (all data)."""
+        return current_dynamics(self.effects, self.eta)
+
+    def effect_params(self, effect):
+        """Parameters that define one effect in this fit (SI)."""
+        if effect == 'gas_spring':
+            return {'k_gas1': float(self.theta[5]), 'k_gas2': float(self.theta[6])}
+        if effect == 'current_lag':
+            return {'tau': float(self.eta['tau_lag'])}
+        return {n: float(self.eta[n]) for n in EFFECT_PARAMS[effect]}
+
+
+def _search_order(effects, new):
+    names = []
+    for e in list(new) + [e for e in effects if e not in new]:
+        names += [n for n in EFFECT_PARAMS[e] if n not in names]
+    return names
+
+
+def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None):
+    """Fit one model by coordinate search over ``eta`` with linear ``theta`` at every point.
+
+    ``start_eta``/``start_theta`` warm-start from a parent model; ``new`` are the effects
+    whose parameters are searched on their full grid first (the others only locally).
+    """
+    effects = tuple(effects)
+    eta = dict(neutral_eta())
+    if start_eta:
+        eta.update(start_eta)
+    new = tuple(effects) if new is None else tuple(new)
+    p = 7 if 'gas_spring' in effects else 5
+    theta = np.zeros(p)
+    if start_theta is not None:
+        theta[:min(p, len(start_theta))] = start_theta[:p]
+    force_dep = any(e in FORCE_DEPENDENT for e in effects)
+    visited = []
+    cache = {}
+    state = {'best': None, 'x': None}
+
+    def ev(e):
+        key = tuple(sorted((k, round(float(v), 12)) for k, v in e.items()))
+        if key in cache and not force_dep:
+            return cache[key]
+        x = design(ds, effects, e, theta)
+        r = CVResult(ds, x, e)
+        visited.append(r)
+        cache[key] = r
+        if state['best'] is None or r.sse < state['best'].sse:
+            state['best'] = r
+            state['x'] = x
+        return r
+
+    def search(name, grid):
+        base = dict(state['best'].eta) if state['best'] is not None else dict(eta)
+        res = []
+        for g in grid:
+            e = dict(base)
+            e[name] = float(g)
+            res.append((ev(e).sse, float(g)))
+        res.sort()
+        return res
+
+    def refine(name, res):
+        """Parabolic steps (log scale for positive scales) around the best grid value."""
+        pts = sorted(res, key=lambda t: t[1])
+        lin = name in ('rho', 'dead_time')
+        for _ in range(2):
+            vals = [t[1] for t in pts]
+            best = min(pts)
+            j = vals.index(best[1])
+            if j == 0 or j == len(pts) - 1:
+                return
+            (s0, a), (s1, b), (s2, c) = pts[j - 1], pts[j], pts[j + 1]
+            use_log = not lin and a > 0
+            if use_log:
+                la, lb, lc = math.log(a), math.log(b), math.log(c)
+            else:
+                la, lb, lc = a, b, c
+            den = (lb - la) * (s1 - s2) - (lb - lc) * (s1 - s0)
+            if den == 0:
+                return
+            lv = lb - 0.5 * ((lb - la) ** 2 * (s1 - s2) - (lb - lc) ** 2 * (s1 - s0)) / den
+            lv = min(max(lv, la), lc)
+            val = math.exp(lv) if use_log else lv
+            if name == 'dead_time':
+                val = round(val / ds.dt_min) * ds.dt_min
+            if any(abs(val - q) <= 1e-9 * max(1e-3, abs(q)) for q in vals):
+                return
+            e = dict(state['best'].eta)
+            e[name] = val
+            pts.append((ev(e).sse, val))
+            pts.sort(key=lambda t: t[1])
+
+    def polish(plist):
+        """Hill-climb each parameter by small steps until no step lowers the error."""
+        for name in plist:
+            for _ in range(8):
+                c = state['best'].eta[name]
+                if name == 'dead_time':
+                    steps = [c - ds.dt_min, c + ds.dt_min]
+                elif name == 'rho':
+                    steps = [c - 0.01, c + 0.01]
+                elif c > 0:
+                    steps = [c * 0.95, c * 1.05]
+                else:
+                    break
+                best = state['best'].sse
+                moved = False
+                for val in steps:
+                    if val < 0 or (name == 'rho' and abs(val) > 0.49):
+                        continue
+                    e = dict(state['best'].eta)
+                    e[name] = float(val)
+                    if ev(e).sse < best * (1 - 1e-9):
+                        moved = True
+                        break
+                if not moved:
+                    break
+
+    def update_theta():
+        if force_dep and state['best'] is not None:
+            e = dict(state['best'].eta)
+            theta[:] = state['best'].theta
+            state['best'] = None
+            ev(e)
+
+    def cur_eta():
+        return state['best'].eta if state['best'] is not None else eta
+
+    # Start: evaluate the warm start (or the neutral point).
+    if start_theta is None and force_dep:
+        # Baseline theta first (the states of force-dependent effects need one).
+        base_eta = dict(eta)
+        for e in effects:
+            for n in EFFECT_PARAMS[e]:
+                base_eta[n] = neutral_eta()[n]
+        theta[:5] = CVResult(ds, design(ds, (), base_eta, theta), base_eta).theta[:5]
+    ev(dict(eta))
+    names = _search_order(effects, new)
+    if sweeps is None:
+        sweeps = 2 if (len(names) > 1 or force_dep) else 1
+    if 'tau_rise' in names and 'tau_rise' not in (start_eta or {}):
+        # Symmetric start for the asymmetric lag: a common time constant first.
+        best = None
+        for g in ds.grid('tau_lag'):
+            e = dict(cur_eta())
+            e['tau_rise'] = e['tau_fall'] = float(g)
+            r = ev(e)
+            best = r if best is None or r.sse < best.sse else best
+    for sweep in range(sweeps):
+        for name in names + ['v_y']:
+            if sweep == 0 and (name in _new_names(new) or start_eta is None
+                               or name not in start_eta):
+                grid = ds.grid(name)
+                if name in ('kappa',):
+                    grid = np.concatenate([[0.0], grid])
+            else:
+                c = cur_eta()[name]
+                if name == 'rho':
+                    grid = c + np.array([-0.1, -0.04, 0.0, 0.04, 0.1])
+                    grid = np.clip(grid, -0.49, 0.49)
+                elif name == 'dead_time':
+                    grid = np.maximum(0.0, c + ds.dt_min * np.array([-2, -1, 0, 1, 2]))
+                elif c > 0:
+                    grid = c * np.array([0.6, 0.8, 1.0, 1.25, 1.6])
+                else:
+                    grid = ds.grid(name)
+            res = search(name, grid)
+            refine(name, res)
+            update_theta()
+    polish(names + ['v_y'])
+    if force_dep:
+        for _ in range(2):
+            update_theta()
+    return FitResult(ds, effects, visited, state['best'], state['x'])
+
+
+def _new_names(new):
+    out = []
+    for e in new:
+        out += list(EFFECT_PARAMS[e])
+    return out

@@ -1,0 +1,85 @@
+"""Fitted-model files (``model.json``) and predictions with a fitted model.
+
+Layout::
+
+    {"format": "mr_suspension.fitted_damper/1",
+     "damper": {"law": "extended", ...ExtendedDamperParams fields (SI)...},
+     "current_dynamics": {"dead_time": s, "tau_rise": s, "tau_fall": s},
+     "input": {"signal": "current_command" | "voltage_command" | "current", "map": "..."},
+     "effects": [...], "fitted_on": [...]}
+
+The current dynamics map onto ``core.driver.DriverParams`` (``tau_rise``, ``tau_fall``,
+``dead_time``; fluid time constants 0): the simulator and actuator node run the driver, then
+``core.extended.extended_force`` with the damper block.
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from mr_suspension.core.extended import ExtendedDamperParams
+from mr_suspension.identification import engine
+
+FORMAT = 'mr_suspension.fitted_damper/1'
+INPUT_MAPS = {
+    'current_command': 'the current command is taken as the coil current (static map only)',
+    'voltage_command': 'driver voltage through core.driver.static_current (DriverParams defaults)',
+    'current': 'the measured coil current is the input (driver dynamics not included)',
+}
+
+
+def model_dict(params, dyn, effects, input_kind, fitted_on=(), extra=None):
+    """Return the JSON-ready model dictionary."""
+    d = {'format': FORMAT, 'damper': {'law': 'extended', **params.to_dict()},
+         'current_dynamics': {k: float(dyn[k]) for k in ('dead_time', 'tau_rise', 'tau_fall')},
+         'input': {'signal': input_kind, 'map': INPUT_MAPS.get(input_kind, '')},
+         'effects': list(effects), 'fitted_on': list(fitted_on)}
+    if extra:
+        d.update(extra)
+    return d
+
+
+def save_model(path, model):
+    """Write a model dictionary as JSON."""
+    Path(path).write_text(json.dumps(model, indent=2) + '\n')
+
+
+def _check_dyn(dyn):
+    out = {}
+    for k in ('dead_time', 'tau_rise', 'tau_fall'):
+        if k not in dyn:
+            raise ValueError(f'model current_dynamics: missing {k}')
+        val = float(dyn[k])
+        if not np.isfinite(val) or val < 0:
+            raise ValueError(f'model current_dynamics: {k} must be finite and >= 0, got {val}')
+        out[k] = val
+    return out
+
+
+def load_model(path):
+    """Read and validate a ``model.json``; return the dictionary."""
+    try:
+        model = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f'{path}: cannot read fitted model ({exc})')
+    if not isinstance(model, dict) or 'damper' not in model:
+        raise ValueError(f'{path}: not a fitted model file (no "damper" block)')
+    if model['damper'].get('law') != 'extended':
+        raise ValueError(f'{path}: damper law must be "extended"')
+    ExtendedDamperParams.from_dict(model['damper'])
+    _check_dyn(model.get('current_dynamics', {}))
+    return model
+
+
+def load_fitted_model(path):
+    """Return ``(ExtendedDamperParams, current_dynamics dict)`` from a ``model.json``."""
+    model = load_model(path)
+    return (ExtendedDamperParams.from_dict(model['damper']),
+            _check_dyn(model['current_dynamics']))
+
+
+def predict(model, record):
+    """Force [N] predicted by a model dictionary on a record (same path as the fit)."""
+    params = ExtendedDamperParams.from_dict(model['damper'])
+    return engine.simulate(record, params, _check_dyn(model['current_dynamics']))

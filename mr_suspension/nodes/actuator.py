@@ -1,0 +1,156 @@
+"""Actuator node: current driver (Wonder Box) and MR damper.
+
+Subscribes to ``current_command`` and to the damper motion (joint ``suspension`` of
+``truth/state``: a real damper is moved by the corner). Clocked by the motion samples (the plant's
+fixed rate): per sample it advances the driver and fluid by one step with the newest valid
+command, evaluates the damper law at that stroke and rate and publishes ``damper/force`` (force
+and tangent ``dF/dv``, stamped with the motion sample) and the measured ``coil_current``
+(:class:`~mr_suspension.core.stepper.ActuatorStepper`).
+
+Commands are checked: NaN/inf are rejected (the previous valid command is held), values outside
+``[current_min, current_max]`` are clamped, both with a throttled log. Before the first command,
+or when commands are older than ``command_timeout`` (real time), ``safe_current`` is applied.
+In lock-step the ``k``-th command is paired with the ``k``-th motion sample.
+"""
+
+from collections import deque
+import math
+import threading
+import time
+
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+
+from mr_suspension.core.stepper import ActuatorStepper
+from mr_suspension.nodes import common, contract as c
+
+NODE = 'actuator'
+SUSPENSION = c.JOINTS_TRUTH.index('suspension')
+
+
+class ActuatorNode(Node):
+    """Wonder Box current driver plus MR damper force law."""
+
+    def __init__(self, context=None, parameter_overrides=None, **kwargs):
+        super().__init__(NODE, context=context, parameter_overrides=parameter_overrides,
+                         **kwargs)
+        d = common.node_defaults(NODE)
+        self.config = common.declare_corner(self, d)
+        self.lockstep = common.declare(self, d, 'lockstep', 'Pair the k-th command with the '
+                                       'k-th motion sample (lock-step)')
+        self.current_min = common.declare(self, d, 'current_min', 'Lowest accepted command '
+                                          '[A]; lower ones are clamped', 0.0, 10.0)
+        self.current_max = common.declare(self, d, 'current_max', 'Highest accepted command '
+                                          '[A]; higher ones are clamped', 0.0, 10.0)
+        self.safe_current = common.declare(self, d, 'safe_current', 'Current before the first '
+                                           'command and on command timeout [A]', 0.0, 10.0)
+        self.command_timeout = common.declare(self, d, 'command_timeout', 'Real time: commands '
+                                              'older than this give safe_current [s]',
+                                              0.0005, 10.0)
+        self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
+                                                 'as JSON here on exit ("" = off)'))
+        if self.current_min > self.current_max:
+            raise ValueError('actuator: current_min must be <= current_max')
+        self.stepper = ActuatorStepper(self.config)
+        self.finished = threading.Event()
+        self.pub_force = self.create_publisher(JointState, c.DAMPER_FORCE,
+                                               common.qos(c.DAMPER_FORCE))
+        self.pub_coil = self.create_publisher(Float64, c.COIL_CURRENT,
+                                              common.qos(c.COIL_CURRENT))
+        self.create_subscription(Float64, c.CURRENT_COMMAND, self._on_command,
+                                 common.qos(c.CURRENT_COMMAND))
+        self.create_subscription(JointState, c.TRUTH_STATE, self._on_motion,
+                                 common.qos(c.TRUTH_STATE))
+        self.msg_force = JointState()
+        self.msg_force.header.frame_id = c.FRAME_SUSPENSION
+        self.msg_force.name = list(c.JOINTS_DAMPER)
+        self.msg_coil = Float64()
+        self.command = self.safe_current
+        self.command_time = -math.inf
+        self.have_command = False
+        self.commands = deque()
+        self.motions = deque()
+        self.n_rejected = 0
+        self.n_clamped = 0
+        self.n_commands = 0
+        self.n_motion = 0
+
+    def validate(self, value):
+        """Return the current to apply for a received command (clamped, NaN rejected)."""
+        if not math.isfinite(value):
+            self.n_rejected += 1
+            self.get_logger().warning(f'actuator: rejected invalid command {value!r}; holding '
+                                      f'{self.command:g} A', throttle_duration_sec=1.0)
+            return self.command
+        if value < self.current_min or value > self.current_max:
+            self.n_clamped += 1
+            clamped = min(max(value, self.current_min), self.current_max)
+            self.get_logger().warning(f'actuator: command {value:g} A outside '
+                                      f'[{self.current_min:g}, {self.current_max:g}] A, '
+                                      f'clamped to {clamped:g} A', throttle_duration_sec=1.0)
+            return clamped
+        return value
+
+    def _on_command(self, msg):
+        self.n_commands += 1
+        i = self.validate(float(msg.data))
+        self.command = i
+        self.command_time = time.monotonic()
+        self.have_command = True
+        if self.lockstep:
+            self.commands.append(i)
+            self._run_lockstep()
+
+    def _on_motion(self, msg):
+        if len(msg.position) <= SUSPENSION or len(msg.velocity) <= SUSPENSION:
+            self.get_logger().error('actuator: truth/state without the suspension joint',
+                                    throttle_duration_sec=1.0)
+            return
+        self.n_motion += 1
+        if not self.stats.marked:
+            self.stats.mark()
+        motion = (msg.header.stamp, float(msg.position[SUSPENSION]),
+                  float(msg.velocity[SUSPENSION]))
+        if self.lockstep:
+            self.motions.append(motion)
+            self._run_lockstep()
+            return
+        fresh = self.have_command and \
+            time.monotonic() - self.command_time <= self.command_timeout
+        self._apply(self.command if fresh else self.safe_current, motion)
+
+    def _run_lockstep(self):
+        while self.commands and self.motions:
+            self._apply(self.commands.popleft(), self.motions.popleft())
+
+    def _apply(self, i_cmd, motion):
+        stamp, x, v = motion
+        if not common.finite(x, v):
+            self.get_logger().error('actuator: non-finite stroke motion; damper force held '
+                                    'at zero', throttle_duration_sec=1.0)
+            x, v = 0.0, 0.0
+        coil, _, force, tangent = self.stepper.step(i_cmd, x, v)
+        m = self.msg_force
+        m.header.stamp = stamp
+        m.position = [x, 0.0]
+        m.velocity = [v, 0.0]
+        m.effort = [force, tangent]
+        self.pub_force.publish(m)
+        self.msg_coil.data = coil
+        self.pub_coil.publish(self.msg_coil)
+
+    def close(self):
+        """Write the statistics file."""
+        self.stats.data.update(commands=self.n_commands, motion_samples=self.n_motion,
+                               rejected=self.n_rejected, clamped=self.n_clamped)
+        self.stats.write()
+
+
+def main(args=None):
+    """Console script ``actuator``."""
+    return common.run(ActuatorNode, args)
+
+
+if __name__ == '__main__':
+    main()

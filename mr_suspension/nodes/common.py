@@ -1,0 +1,215 @@
+"""Code shared by the nodes: environment, parameters, QoS, the corner config, stats, ``run``.
+
+Parameter defaults live in ``config/nodes/<node>.yaml`` (ROS 2 parameter files, key
+``/**/<node>``); each node declares its parameters with a description and a range here and takes
+the default from that file, so ``--ros-args --params-file`` and ``-p`` override them as usual.
+"""
+
+import json
+import math
+import os
+from pathlib import Path
+import resource
+import signal
+import sys
+import threading
+import time
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+import rclpy
+from rclpy.experimental import EventsExecutor
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+import yaml
+
+from mr_suspension.control import laws
+from mr_suspension.core import config as cfg
+from mr_suspension.core.simulator import CornerConfig
+from mr_suspension.nodes import contract
+
+
+def ensure_environment():
+    """Point ``AMENT_PREFIX_PATH`` at this interpreter's prefix if it does not cover it."""
+    prefix = sys.prefix
+    parts = [p for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
+    if prefix not in parts:
+        os.environ['AMENT_PREFIX_PATH'] = os.pathsep.join([prefix] + parts)
+
+
+def qos(topic):
+    """QoS profile of a contract topic (reliable, keep-last ``depth``, volatile)."""
+    t = contract.TOPICS[topic]
+    rel = ReliabilityPolicy.RELIABLE if t.reliability == 'reliable' \
+        else ReliabilityPolicy.BEST_EFFORT
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=t.depth, reliability=rel,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+def node_defaults_path(node):
+    """Path of ``config/nodes/<node>.yaml``."""
+    return cfg.config_dir() / 'nodes' / f'{node}.yaml'
+
+
+def node_defaults(node):
+    """Default parameters of ``node`` from ``config/nodes/<node>.yaml``."""
+    with open(node_defaults_path(node), encoding='utf-8') as fh:
+        data = yaml.safe_load(fh) or {}
+    for key, value in data.items():
+        if key.rstrip('/').split('/')[-1] == node:
+            return dict(value.get('ros__parameters', {}))
+    raise KeyError(f'{node_defaults_path(node)}: no entry for node {node!r}')
+
+
+def declare(node, defaults, name, description, lo=None, hi=None):
+    """Declare parameter ``name`` with its default from ``defaults`` and return its value.
+
+    ``lo``/``hi`` give a FloatingPointRange (float default) or IntegerRange (int default).
+    """
+    value = defaults[name]
+    desc = ParameterDescriptor(description=description)
+    if lo is not None:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise TypeError(f'{name}: a range needs a numeric default')
+        if isinstance(value, int):
+            desc.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+        else:
+            desc.floating_point_range = [FloatingPointRange(from_value=float(lo),
+                                                            to_value=float(hi), step=0.0)]
+    return node.declare_parameter(name, value, desc).value
+
+
+def declare_corner(node, defaults):
+    """Declare the parameter-set names and rate shared by the nodes; return the CornerConfig."""
+    names = {}
+    for kind, key in (('vehicles', 'vehicle'), ('dampers', 'damper'), ('drivers', 'driver'),
+                      ('controllers', 'controller')):
+        names[key] = declare(node, defaults, key,
+                             f'{kind[:-1]} parameter set: a name in config/{kind} or a YAML path')
+    rate = declare(node, defaults, 'rate', 'Fixed step rate [Hz] (all nodes must agree)',
+                   100.0, 10000.0)
+    return corner_config(rate=rate, **names)
+
+
+def corner_config(vehicle='city_car', damper='rd1005_bingham', driver='wonder_box',
+                  controller='skyhook_onoff', rate=1000.0):
+    """The corner the nodes and the offline reference build from the parameter-set names.
+
+    The controller gets the plant knowledge of the corner (``laws.configure``: vehicle, damper
+    model, driver range), as the evaluation does.
+    """
+    car = cfg.load_vehicle(vehicle)
+    dmp = cfg.load_damper(damper)
+    drv = cfg.load_driver(driver)
+    return CornerConfig(car=car, damper=dmp, driver=drv,
+                        controller=laws.configure(controller, car, dmp, drv), dt=1.0 / rate)
+
+
+def stamp_to_ns(stamp):
+    """``builtin_interfaces/Time`` to integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def set_stamp(header, ns):
+    """Write integer nanoseconds into a header stamp."""
+    header.stamp.sec = int(ns // 1_000_000_000)
+    header.stamp.nanosec = int(ns % 1_000_000_000)
+
+
+def finite(*values):
+    """True when every value is a finite float."""
+    return all(math.isfinite(v) for v in values)
+
+
+def percentiles(values, ps=(50, 99)):
+    """Percentiles of a list (NaN when empty)."""
+    import numpy as np
+    if len(values) == 0:
+        return [float('nan')] * len(ps)
+    return [float(v) for v in np.percentile(np.asarray(values, dtype=float), ps)]
+
+
+class Stats:
+    """Per-node run statistics written as JSON on shutdown (parameter ``stats_file``)."""
+
+    def __init__(self, path):
+        self.path = path
+        self.data = {}
+        self.wall0 = time.monotonic()
+        self.cpu0 = self._cpu()
+        self.marked = False
+
+    @staticmethod
+    def _cpu():
+        ru = resource.getrusage(resource.RUSAGE_SELF)
+        return ru.ru_utime + ru.ru_stime
+
+    def mark(self):
+        """Start the CPU and wall clocks of the run here (after imports and set-up)."""
+        self.wall0 = time.monotonic()
+        self.cpu0 = self._cpu()
+        self.data['start_unix'] = time.time()
+        self.marked = True
+
+    def write(self):
+        """Write the statistics plus CPU and wall time since :meth:`mark` (no-op w/o path)."""
+        if not self.path:
+            return
+        self.data['cpu_s'] = self._cpu() - self.cpu0
+        self.data['wall_s'] = time.monotonic() - self.wall0
+        self.data['cpu_fraction'] = self.data['cpu_s'] / max(self.data['wall_s'], 1e-9)
+        Path(self.path).parent.mkdir(parents=True, exist_ok=True)
+        with open(self.path, 'w', encoding='utf-8') as fh:
+            json.dump(self.data, fh, indent=1)
+
+
+def spin_until(executor, condition, timeout_sec, step=0.05):
+    """Spin ``executor`` until ``condition()`` holds or ``timeout_sec`` passes; return it.
+
+    Spins in slices of ``step`` seconds with ``spin_until_future_complete`` on a future that
+    never completes (``spin_once`` handles one event per call, far too slow at 1 kHz); the
+    timeout is always finite (the events executor can hang otherwise).
+    """
+    never = executor.create_future()
+    end = time.monotonic() + timeout_sec
+    while not condition():
+        left = end - time.monotonic()
+        if left <= 0.0:
+            return condition()
+        executor.spin_until_future_complete(never, timeout_sec=min(step, left))
+    return True
+
+
+def run(node_cls, args=None):
+    """Run one node until SIGINT/SIGTERM or until it asks to stop; clean shutdown either way.
+
+    The node may define ``finished`` (a threading.Event it sets to end the process) and
+    ``close()`` (called after spinning stops, before the context is shut down).
+    """
+    ensure_environment()
+    stop = threading.Event()
+    context = rclpy.Context()
+    rclpy.init(args=args if args is not None else sys.argv, context=context,
+               signal_handler_options=SignalHandlerOptions.NO)
+
+    def _on_signal(signum, frame):
+        stop.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _on_signal)
+    node = None
+    try:
+        node = node_cls(context=context)
+        executor = EventsExecutor(context=context)
+        executor.add_node(node)
+        finished = getattr(node, 'finished', threading.Event())
+        spin_until(executor, lambda: stop.is_set() or finished.is_set() or not context.ok(),
+                   math.inf, step=0.1)
+        if hasattr(node, 'drain'):
+            node.drain(executor)
+    finally:
+        if node is not None:
+            if hasattr(node, 'close'):
+                node.close()
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    return 0

@@ -1,0 +1,124 @@
+"""Topic contract of the node set, checked against ``msg_defs/topics.yaml``.
+
+The YAML file is the human-readable contract; this module holds the same facts for the nodes
+and the recorder, and :func:`check_against_yaml` (run by ``test/test_contract.py``) reports any
+difference between the two. No ROS imports here.
+"""
+
+from dataclasses import dataclass
+import os
+from pathlib import Path
+
+import yaml
+
+
+@dataclass(frozen=True)
+class Topic:
+    """One contract topic."""
+
+    name: str
+    type: str
+    rate: float
+    reliability: str
+    depth: int
+    units: str
+    frame_id: str
+    publisher: str
+    subscribers: tuple
+
+
+IMU_BODY = 'imu/body'
+IMU_WHEEL = 'imu/wheel'
+STROKE = 'stroke'
+CURRENT_COMMAND = 'current_command'
+COIL_CURRENT = 'coil_current'
+DAMPER_FORCE = 'damper/force'
+TRUTH_STATE = 'truth/state'
+TRUTH_TYRE_FORCE = 'truth/tyre_force'
+CLOCK = '/clock'
+
+# Frames and joint names used in the messages.
+FRAME_BODY_IMU = 'body_imu'
+FRAME_WHEEL_IMU = 'wheel_imu'
+FRAME_SUSPENSION = 'suspension'
+FRAME_WORLD = 'world'
+JOINT_STROKE = 'suspension_stroke'
+JOINTS_DAMPER = ('damper', 'damper_tangent')
+JOINTS_TRUTH = ('body', 'wheel', 'road', 'suspension')
+
+DEPTH = 1000
+_R = 'reliable'
+IMU = 'sensor_msgs/msg/Imu'
+JOINT_STATE = 'sensor_msgs/msg/JointState'
+FLOAT64 = 'std_msgs/msg/Float64'
+CLOCK_TYPE = 'rosgraph_msgs/msg/Clock'
+
+TOPICS = {t.name: t for t in (
+    Topic(IMU_BODY, IMU, 1000, _R, DEPTH, 'm/s^2 (linear_acceleration)', FRAME_BODY_IMU,
+          'plant', ('controller', 'recorder')),
+    Topic(IMU_WHEEL, IMU, 1000, _R, DEPTH, 'm/s^2 (linear_acceleration)', FRAME_WHEEL_IMU,
+          'plant', ('controller', 'recorder')),
+    Topic(STROKE, JOINT_STATE, 1000, _R, DEPTH, 'm (position)', FRAME_SUSPENSION, 'plant',
+          ('controller', 'recorder')),
+    Topic(CURRENT_COMMAND, FLOAT64, 1000, _R, DEPTH, 'A', '', 'controller',
+          ('actuator', 'recorder')),
+    Topic(COIL_CURRENT, FLOAT64, 1000, _R, DEPTH, 'A', '', 'actuator',
+          ('controller', 'recorder')),
+    Topic(DAMPER_FORCE, JOINT_STATE, 1000, _R, DEPTH, 'N (effort[0]), N s/m (effort[1]), m, m/s',
+          FRAME_SUSPENSION, 'actuator', ('plant', 'recorder')),
+    Topic(TRUTH_STATE, JOINT_STATE, 1000, _R, DEPTH, 'm (position), m/s (velocity)',
+          FRAME_WORLD, 'plant', ('actuator', 'recorder')),
+    Topic(TRUTH_TYRE_FORCE, FLOAT64, 1000, _R, DEPTH, 'N', '', 'plant', ('recorder',)),
+    Topic(CLOCK, CLOCK_TYPE, 1000, _R, DEPTH, 's', '', 'plant',
+          ('controller', 'actuator', 'recorder')),
+)}
+
+
+def published_by(node):
+    """Names of the topics ``node`` publishes."""
+    return sorted(n for n, t in TOPICS.items() if t.publisher == node)
+
+
+def subscribed_by(node):
+    """Names of the topics ``node`` subscribes to."""
+    return sorted(n for n, t in TOPICS.items() if node in t.subscribers)
+
+
+def yaml_path():
+    """Path of ``msg_defs/topics.yaml`` (source tree, then the installed share directory)."""
+    env = os.environ.get('MR_SUSPENSION_MSG_DEFS')
+    if env:
+        return Path(env) / 'topics.yaml'
+    here = Path(__file__).resolve().parents[2] / 'msg_defs' / 'topics.yaml'
+    if here.is_file():
+        return here
+    from ament_index_python.packages import get_package_share_directory
+    return Path(get_package_share_directory('mr_suspension')) / 'msg_defs' / 'topics.yaml'
+
+
+def load_yaml(path=None):
+    """Return the ``topics`` mapping of the YAML contract."""
+    with open(path or yaml_path(), encoding='utf-8') as fh:
+        data = yaml.safe_load(fh)
+    return data['topics']
+
+
+def check_against_yaml(path=None):
+    """Return a list of differences between this module and the YAML contract (empty: agree)."""
+    doc = load_yaml(path)
+    errors = []
+    for name in sorted(set(doc) ^ set(TOPICS)):
+        errors.append(f'{name}: only in {"YAML" if name in doc else "contract.py"}')
+    for name in sorted(set(doc) & set(TOPICS)):
+        y, t = doc[name], TOPICS[name]
+        got = {'type': y.get('type'), 'rate': float(y.get('rate')),
+               'reliability': y.get('qos', {}).get('reliability'),
+               'depth': y.get('qos', {}).get('depth'), 'units': y.get('units'),
+               'frame_id': y.get('frame_id'), 'publisher': y.get('publisher'),
+               'subscribers': tuple(y.get('subscribers', ()))}
+        for key, value in got.items():
+            if value != getattr(t, key) and not (key == 'rate' and value == float(t.rate)):
+                errors.append(f'{name}.{key}: YAML {value!r} != contract.py {getattr(t, key)!r}')
+        if name.startswith('/') and name != CLOCK:
+            errors.append(f'{name}: names must be relative (except /clock)')
+    return errors

@@ -1,0 +1,160 @@
+"""Controller node: from the car's sensors to the coil-current command, at a fixed rate.
+
+Subscribes only to what a car's sensors give: ``imu/body``, ``imu/wheel`` (specific force,
+gravity removed here), ``stroke`` and the driver's measured ``coil_current``; never to ground
+truth. Fills the measurement vector of :mod:`mr_suspension.control.laws` and runs the configured
+law (:class:`~mr_suspension.core.stepper.ControllerStepper`, which also estimates the
+velocities), publishes ``current_command``.
+
+* Real time: a timer at ``rate`` uses the newest sample of every sensor. If any sensor is older
+  than ``sensor_timeout`` (or never arrived, or carries NaN) it publishes ``fallback_current``
+  instead and logs it once per episode (and the recovery).
+* Lock-step: runs once per sample, when the three sensor messages of the same stamp (and the
+  coil current of the step before) are in.
+"""
+
+import math
+import threading
+import time
+
+from rclpy.node import Node
+from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import Float64
+
+from mr_suspension.core.stepper import ControllerStepper
+from mr_suspension.nodes import common, contract as c
+
+NODE = 'controller'
+
+
+class ControllerNode(Node):
+    """Semi-active control law on sensor data with a stale-sensor fallback."""
+
+    def __init__(self, context=None, parameter_overrides=None, **kwargs):
+        super().__init__(NODE, context=context, parameter_overrides=parameter_overrides,
+                         **kwargs)
+        d = common.node_defaults(NODE)
+        self.config = common.declare_corner(self, d)
+        self.lockstep = common.declare(self, d, 'lockstep', 'Run once per sensor sample '
+                                       '(lock-step) instead of on a wall timer')
+        self.gravity = common.declare(self, d, 'gravity', 'Gravity removed from the '
+                                      'accelerometers [m/s^2]', 0.0, 20.0)
+        self.sensor_timeout = common.declare(self, d, 'sensor_timeout', 'Sensors older than '
+                                             'this trigger the fallback [s]', 0.0005, 10.0)
+        self.fallback_current = common.declare(self, d, 'fallback_current', 'Safe fixed '
+                                               'current while sensors are stale [A]', 0.0, 10.0)
+        self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
+                                                 'as JSON here on exit ("" = off)'))
+        self.stepper = ControllerStepper(self.config)
+        self.finished = threading.Event()
+        self.pub_cmd = self.create_publisher(Float64, c.CURRENT_COMMAND,
+                                             common.qos(c.CURRENT_COMMAND))
+        self.create_subscription(Imu, c.IMU_BODY, self._on_imu_s, common.qos(c.IMU_BODY))
+        self.create_subscription(Imu, c.IMU_WHEEL, self._on_imu_u, common.qos(c.IMU_WHEEL))
+        self.create_subscription(JointState, c.STROKE, self._on_stroke, common.qos(c.STROKE))
+        self.create_subscription(Float64, c.COIL_CURRENT, self._on_coil,
+                                 common.qos(c.COIL_CURRENT))
+        self.msg = Float64()
+        # Newest value and monotonic arrival time per sensor.
+        self.latest = {c.IMU_BODY: None, c.IMU_WHEEL: None, c.STROKE: None}
+        self.arrival = dict.fromkeys(self.latest, -math.inf)
+        self.coil = []
+        self.coil_latest = 0.0
+        self.pending = {}
+        self.k = 0
+        self.fallback = False
+        self.n_fallback = 0
+        self.n_cmd = 0
+        self.n_sensor = dict.fromkeys(self.latest, 0)
+        self.timer = None
+        if not self.lockstep:
+            self.timer = self.create_timer(self.config.dt, self._on_tick)
+
+    # -- inputs ----------------------------------------------------------------------------
+
+    def _store(self, topic, stamp, value):
+        if not self.stats.marked:
+            self.stats.mark()
+        self.n_sensor[topic] += 1
+        self.latest[topic] = value
+        self.arrival[topic] = time.monotonic()
+        if self.lockstep:
+            self.pending.setdefault(common.stamp_to_ns(stamp), {})[topic] = value
+            self._run_lockstep()
+
+    def _on_imu_s(self, msg):
+        self._store(c.IMU_BODY, msg.header.stamp, msg.linear_acceleration.z - self.gravity)
+
+    def _on_imu_u(self, msg):
+        self._store(c.IMU_WHEEL, msg.header.stamp, msg.linear_acceleration.z - self.gravity)
+
+    def _on_stroke(self, msg):
+        x = float(msg.position[0]) if len(msg.position) else math.nan
+        self._store(c.STROKE, msg.header.stamp, x)
+
+    def _on_coil(self, msg):
+        self.coil_latest = float(msg.data)
+        if self.lockstep:
+            self.coil.append(float(msg.data))
+            self._run_lockstep()
+
+    # -- control ---------------------------------------------------------------------------
+
+    def _command(self, acc_s, acc_u, x, field, stale_reason):
+        if stale_reason is None and not common.finite(acc_s, acc_u, x):
+            stale_reason = 'non-finite sensor value'
+        if stale_reason is not None:
+            if not self.fallback:
+                self.get_logger().warning(f'controller: {stale_reason}; falling back to the '
+                                          f'safe current {self.fallback_current:g} A')
+            self.fallback = True
+            self.n_fallback += 1
+            i_cmd = self.fallback_current
+        else:
+            if self.fallback:
+                self.get_logger().info('controller: sensors are back; control law resumed')
+            self.fallback = False
+            i_cmd = self.stepper.step(acc_s, acc_u, x, field if math.isfinite(field) else 0.0)
+        self.msg.data = float(i_cmd)
+        self.pub_cmd.publish(self.msg)
+        self.n_cmd += 1
+
+    def _on_tick(self):
+        now = time.monotonic()
+        stale = [t for t in self.latest
+                 if self.latest[t] is None or now - self.arrival[t] > self.sensor_timeout]
+        reason = None
+        if stale:
+            reason = f'sensor data stale for more than {self.sensor_timeout:g} s ' \
+                     f'({", ".join(stale)})'
+            self._command(0.0, 0.0, 0.0, 0.0, reason)
+            return
+        self._command(self.latest[c.IMU_BODY], self.latest[c.IMU_WHEEL],
+                      self.latest[c.STROKE], self.coil_latest, None)
+
+    def _run_lockstep(self):
+        while self.pending:
+            key = min(self.pending)
+            sample = self.pending[key]
+            if len(sample) < 3 or len(self.coil) < self.k:
+                return
+            del self.pending[key]
+            field = self.coil[self.k - 1] if self.k > 0 else 0.0
+            self._command(sample[c.IMU_BODY], sample[c.IMU_WHEEL], sample[c.STROKE], field,
+                          None)
+            self.k += 1
+
+    def close(self):
+        """Write the statistics file."""
+        self.stats.data.update(commands=self.n_cmd, fallback_steps=self.n_fallback,
+                               received={k: v for k, v in self.n_sensor.items()})
+        self.stats.write()
+
+
+def main(args=None):
+    """Console script ``controller``."""
+    return common.run(ControllerNode, args)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,262 @@
+"""Plant node: integrates the corner over a road and publishes the sensors and ground truth.
+
+Publishes (relative names, see ``msg_defs/topics.yaml``) ``imu/body``, ``imu/wheel``, ``stroke``,
+``truth/state``, ``truth/tyre_force`` and, in lock-step mode, ``/clock``; subscribes to
+``damper/force``. Sample ``k`` carries the state at ``t_k = k dt`` and the accelerations and tyre
+force of the step that ended there.
+
+* Real time (``lockstep: false``): a wall timer at ``rate``; each tick advances one step with the
+  newest damper force, moved to the present stroke rate along its tangent
+  (:meth:`~mr_suspension.core.stepper.PlantStepper.coupled`). If the force of the present sample
+  has not arrived yet the force of the sample before is used: one sample of coupling latency,
+  stable because the stiff part acts through the tangent inside the implicit step.
+* Lock-step (``lockstep: true``): after publishing sample ``k`` the plant waits for the damper
+  force of sample ``k``, then steps; time is simulated and published on ``/clock``. This is the
+  simulator's step order exactly, reproducible and faster than real time.
+"""
+
+import threading
+import time
+
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import Float64
+import yaml
+
+from mr_suspension.core import road as rd
+from mr_suspension.core.stepper import PlantStepper
+from mr_suspension.nodes import common, contract as c
+
+NODE = 'plant'
+
+
+class PlantNode(Node):
+    """Quarter-car plant with road, sensors and ground truth."""
+
+    def __init__(self, context=None, parameter_overrides=None, **kwargs):
+        super().__init__(NODE, context=context, parameter_overrides=parameter_overrides,
+                         **kwargs)
+        d = common.node_defaults(NODE)
+        self.config = common.declare_corner(self, d)
+        spec = common.declare(self, d, 'road', 'Road as a YAML mapping, e.g. "{type: bump, '
+                              'height: 0.05}" (types: step, bump, harmonic, sweep, iso8608)')
+        duration = common.declare(self, d, 'duration', 'Run duration [s]', 0.01, 1.0e5)
+        self.lockstep = common.declare(self, d, 'lockstep', 'Lock-step simulated time (true) '
+                                       'or real time (false)')
+        self.publish_clock = common.declare(self, d, 'publish_clock', 'Publish /clock with '
+                                            'the simulated time (lock-step only)')
+        self.expect_subscribers = common.declare(
+            self, d, 'expect_subscribers', 'Start once imu/body has this many subscribers '
+            '(controller, plus recorder if any)', 0, 100)
+        self.start_delay = common.declare(self, d, 'start_delay', 'Wait after discovery before '
+                                          'the first step [s]', 0.0, 60.0)
+        self.exit_at_end = common.declare(self, d, 'exit_at_end', 'End the process when the '
+                                          'road is used up')
+        self.max_catchup = common.declare(self, d, 'max_catchup', 'Real time: most steps per '
+                                          'timer tick when behind the wall clock', 1, 100)
+        self.gravity = self.config.car.g
+        self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
+                                                 'as JSON here on exit ("" = off)'))
+        road_spec = yaml.safe_load(spec) if isinstance(spec, str) else spec
+        if not isinstance(road_spec, dict):
+            raise ValueError(f'plant: parameter road must be a YAML mapping, got {spec!r}')
+        self.road = rd.from_spec(road_spec, duration=duration, dt=self.config.dt)
+        self.plant = PlantStepper(self.config, self.road)
+        self.dt_ns = int(round(self.config.dt * 1e9))
+        self.finished = threading.Event()
+
+        self.pub_imu_s = self.create_publisher(Imu, c.IMU_BODY, common.qos(c.IMU_BODY))
+        self.pub_imu_u = self.create_publisher(Imu, c.IMU_WHEEL, common.qos(c.IMU_WHEEL))
+        self.pub_stroke = self.create_publisher(JointState, c.STROKE, common.qos(c.STROKE))
+        self.pub_truth = self.create_publisher(JointState, c.TRUTH_STATE,
+                                               common.qos(c.TRUTH_STATE))
+        self.pub_tyre = self.create_publisher(Float64, c.TRUTH_TYRE_FORCE,
+                                              common.qos(c.TRUTH_TYRE_FORCE))
+        self.pub_clock = None
+        if self.lockstep and self.publish_clock:
+            self.pub_clock = self.create_publisher(Clock, c.CLOCK, common.qos(c.CLOCK))
+        self.sub_force = self.create_subscription(JointState, c.DAMPER_FORCE, self._on_force,
+                                                  common.qos(c.DAMPER_FORCE))
+        self._init_messages()
+        # Newest damper force: (sample index, force, tangent, stroke rate it was evaluated at).
+        self.force = None
+        self.started = False
+        self.t0_ns = 0
+        self.wall0 = 0.0
+        self.pub_wall = [0.0] * (self.road.n_steps + 1)
+        self.latency = []
+        self.periods = []
+        self.last_tick = None
+        self.late_forces = 0
+        self.step_cost = []
+        self.n_forces = 0
+        self.stats.data.update(mode='lockstep' if self.lockstep else 'realtime',
+                               rate=1.0 / self.config.dt, steps_planned=self.road.n_steps)
+        self.ready_since = None
+        self.start_timer = self.create_timer(0.02, self._try_start)
+        self.step_timer = None
+        self.get_logger().info(
+            f'plant: {self.road.name}, {self.road.n_steps} steps of {self.config.dt * 1e3:g} ms, '
+            f'{"lock-step" if self.lockstep else "real time"}')
+
+    def _init_messages(self):
+        self.msg_imu_s = Imu()
+        self.msg_imu_s.header.frame_id = c.FRAME_BODY_IMU
+        self.msg_imu_u = Imu()
+        self.msg_imu_u.header.frame_id = c.FRAME_WHEEL_IMU
+        for m in (self.msg_imu_s, self.msg_imu_u):
+            m.orientation_covariance[0] = -1.0
+            m.angular_velocity_covariance[0] = -1.0
+        self.msg_stroke = JointState()
+        self.msg_stroke.header.frame_id = c.FRAME_SUSPENSION
+        self.msg_stroke.name = [c.JOINT_STROKE]
+        self.msg_truth = JointState()
+        self.msg_truth.header.frame_id = c.FRAME_WORLD
+        self.msg_truth.name = list(c.JOINTS_TRUTH)
+        self.msg_tyre = Float64()
+        self.msg_clock = Clock()
+
+    # -- start-up --------------------------------------------------------------------------
+
+    def _ready(self):
+        return (self.pub_imu_s.get_subscription_count() >= self.expect_subscribers
+                and self.pub_truth.get_subscription_count() >= 1
+                and self.sub_force.get_publisher_count() >= 1
+                and self.count_publishers(c.CURRENT_COMMAND) >= 1
+                and self.count_subscribers(c.CURRENT_COMMAND) >= 1)
+
+    def _try_start(self):
+        if self.started:
+            return
+        if not self._ready():
+            self.ready_since = None
+            return
+        now = time.monotonic()
+        if self.ready_since is None:
+            self.ready_since = now
+        if now - self.ready_since < self.start_delay:
+            return
+        self.start_timer.cancel()
+        self.started = True
+        self.wall0 = time.monotonic()
+        self.stats.mark()
+        if not self.lockstep:
+            self.t0_ns = self.get_clock().now().nanoseconds
+            self.step_timer = self.create_timer(self.config.dt, self._on_tick)
+        self.get_logger().info('plant: node set connected, starting')
+        self._publish_sample()
+
+    # -- publishing ------------------------------------------------------------------------
+
+    def _publish_sample(self):
+        p = self.plant
+        ns = self.t0_ns + p.k * self.dt_ns
+        for m in (self.msg_imu_s, self.msg_imu_u, self.msg_stroke, self.msg_truth):
+            common.set_stamp(m.header, ns)
+        self.msg_imu_s.linear_acceleration.z = p.a_s + self.gravity
+        self.msg_imu_u.linear_acceleration.z = p.a_u + self.gravity
+        x = p.stroke
+        v = p.stroke_rate
+        z_r, zr_dot = p.road_now()
+        q = p.q
+        self.msg_stroke.position = [x]
+        self.msg_truth.position = [float(q[0]), float(q[1]), z_r, x]
+        self.msg_truth.velocity = [float(q[2]), float(q[3]), zr_dot, v]
+        self.msg_tyre.data = p.f_t
+        self.pub_wall[p.k] = time.monotonic()
+        # Critical path first: the controller's sensors, then the damper motion.
+        self.pub_imu_s.publish(self.msg_imu_s)
+        self.pub_imu_u.publish(self.msg_imu_u)
+        self.pub_stroke.publish(self.msg_stroke)
+        self.pub_truth.publish(self.msg_truth)
+        self.pub_tyre.publish(self.msg_tyre)
+        if self.pub_clock is not None:
+            self.msg_clock.clock.sec = int(ns // 1_000_000_000)
+            self.msg_clock.clock.nanosec = int(ns % 1_000_000_000)
+            self.pub_clock.publish(self.msg_clock)
+
+    # -- stepping --------------------------------------------------------------------------
+
+    def _on_force(self, msg):
+        now = time.monotonic()
+        k = int(round((common.stamp_to_ns(msg.header.stamp) - self.t0_ns) / self.dt_ns))
+        if len(msg.effort) < 2 or len(msg.velocity) < 1 or not common.finite(
+                msg.effort[0], msg.effort[1], msg.velocity[0]):
+            self.get_logger().error('plant: invalid damper/force message ignored',
+                                    throttle_duration_sec=1.0)
+            return
+        if not self.started or not 0 <= k <= self.plant.k:
+            return
+        self.n_forces += 1
+        self.latency.append(now - self.pub_wall[k])
+        if self.force is not None and k < self.force[0]:
+            return
+        self.force = (k, float(msg.effort[0]), float(msg.effort[1]), float(msg.velocity[0]))
+        if self.lockstep and k == self.plant.k and not self.plant.done:
+            self._advance()
+
+    def _advance(self):
+        t_in = time.monotonic()
+        p = self.plant
+        if self.force is None:
+            f_d, c_d = 0.0, 0.0
+        else:
+            k, f_m, c_m, v_m = self.force
+            if k != p.k:
+                self.late_forces += 1
+            f_d, c_d = p.coupled(f_m, c_m, v_m), c_m
+        p.step(f_d, c_d)
+        self._publish_sample()
+        self.step_cost.append(time.monotonic() - t_in)
+        if p.done:
+            self._finish()
+
+    def _on_tick(self):
+        now = time.monotonic()
+        if self.last_tick is not None:
+            self.periods.append(now - self.last_tick)
+        self.last_tick = now
+        if self.plant.done:
+            return
+        target = int((now - self.wall0) / self.config.dt)
+        n = 0
+        while self.plant.k < target and n < self.max_catchup and not self.plant.done:
+            self._advance()
+            n += 1
+
+    def _finish(self):
+        if self.step_timer is not None:
+            self.step_timer.cancel()
+        wall = time.monotonic() - self.wall0
+        lat = common.percentiles(self.latency)
+        jit = common.percentiles([abs(x - self.config.dt) for x in self.periods])
+        cost = common.percentiles(self.step_cost)
+        self.stats.data.update(
+            steps=self.plant.k, run_wall_s=wall, steps_per_s=self.plant.k / wall,
+            published=self.plant.k + 1, forces_received=self.n_forces,
+            late_forces=self.late_forces, latency_p50_s=lat[0], latency_p99_s=lat[1],
+            jitter_p50_s=jit[0], jitter_p99_s=jit[1], ticks=len(self.periods) + 1,
+            step_cost_p50_s=cost[0], step_cost_p99_s=cost[1])
+        self.get_logger().info(
+            f'plant: done, {self.plant.k} steps in {wall:.2f} s ({self.plant.k / wall:.0f} '
+            f'steps/s), {self.late_forces} steps used the previous sample\'s force')
+        if self.exit_at_end:
+            self.finished.set()
+
+    def drain(self, executor):
+        """Let in-flight force messages arrive before exit (for complete statistics)."""
+        common.spin_until(executor, lambda: False, 0.2)
+
+    def close(self):
+        """Write the statistics file."""
+        self.stats.write()
+
+
+def main(args=None):
+    """Console script ``plant``."""
+    return common.run(PlantNode, args)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,127 @@
+"""Recorder node: writes the contract topics to a rosbag2 bag (MCAP by default, or sqlite3).
+
+Uses ``rosbags`` (no rosbag2 install needed); the bag is a standard rosbag2 directory
+(``metadata.yaml`` plus the storage file) that ``ros2 bag``, ``rosbags`` and ``mcap`` read.
+Messages are taken serialized (raw CDR) and written as they are, time-stamped with the node's
+clock at reception (simulated time in lock-step runs with ``use_sim_time``), like
+``ros2 bag record``. On SIGINT/SIGTERM it keeps spinning until the queues are drained, then closes
+the bag (metadata written), so no received message is lost.
+"""
+
+from datetime import datetime
+import importlib
+from pathlib import Path
+import threading
+import time
+
+from rclpy.node import Node
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import get_typestore, Stores
+
+from mr_suspension.nodes import common, contract as c
+
+NODE = 'recorder'
+STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+
+
+def typestore():
+    """The rosbags type store matching this ROS distribution (Kilted)."""
+    return get_typestore(Stores.ROS2_KILTED)
+
+
+def message_class(msgtype):
+    """Python class of a ROS message type such as ``sensor_msgs/msg/Imu``."""
+    pkg, _, name = msgtype.split('/')
+    return getattr(importlib.import_module(f'{pkg}.msg'), name)
+
+
+class RecorderNode(Node):
+    """Record the contract topics of this namespace into a rosbag2 bag."""
+
+    def __init__(self, context=None, parameter_overrides=None, **kwargs):
+        super().__init__(NODE, context=context, parameter_overrides=parameter_overrides,
+                         **kwargs)
+        d = common.node_defaults(NODE)
+        output = common.declare(self, d, 'output', 'Bag directory to create ("" = '
+                                'rosbag2_<date-time> in the working directory)')
+        storage = common.declare(self, d, 'storage', 'Storage plugin: mcap or sqlite3')
+        topics = common.declare(self, d, 'topics', 'Comma-separated contract topics to record '
+                                '("" = all)')
+        self.drain_idle = common.declare(self, d, 'drain_idle', 'On shutdown, stop once no '
+                                         'message arrived for this long [s]', 0.01, 10.0)
+        self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
+                                                 'as JSON here on exit ("" = off)'))
+        if storage not in STORAGES:
+            raise ValueError(f'recorder: storage must be one of {sorted(STORAGES)}, '
+                             f'got {storage!r}')
+        names = [t.strip() for t in topics.split(',') if t.strip()] or list(c.TOPICS)
+        unknown = sorted(set(names) - set(c.TOPICS))
+        if unknown:
+            raise ValueError(f'recorder: unknown topics {unknown}; contract: {sorted(c.TOPICS)}')
+        if not output:
+            output = datetime.now().strftime('rosbag2_%Y_%m_%d-%H_%M_%S')
+        self.path = Path(output)
+        if self.path.exists():
+            raise FileExistsError(f'recorder: {self.path} exists; choose a new output')
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.finished = threading.Event()
+        self.lock = threading.Lock()
+        self.writer = Writer(self.path, version=9, storage_plugin=STORAGES[storage])
+        self.writer.open()
+        self.closed = False
+        store = typestore()
+        self.counts = {}
+        self.last_arrival = time.monotonic()
+        for name in names:
+            t = c.TOPICS[name]
+            full = self.resolve_topic_name(name)
+            conn = self.writer.add_connection(full, t.type, typestore=store)
+            self.counts[full] = 0
+            self.create_subscription(message_class(t.type), name, self._writer_cb(conn, full),
+                                     common.qos(name), raw=True)
+        self.get_logger().info(f'recorder: writing {len(names)} topics to {self.path} '
+                               f'({storage})')
+
+    def _writer_cb(self, conn, full):
+        def callback(raw):
+            with self.lock:
+                if self.closed:
+                    return
+                self.writer.write(conn, self.get_clock().now().nanoseconds, raw)
+                self.counts[full] += 1
+                if not self.stats.marked:
+                    self.stats.mark()
+                self.last_arrival = time.monotonic()
+        return callback
+
+    def drain(self, executor):
+        """Keep receiving until no message arrived for ``drain_idle`` seconds (at most 10 s)."""
+        end = time.monotonic() + 10.0
+        common.spin_until(executor, lambda: time.monotonic() - self.last_arrival > self.drain_idle
+                          or time.monotonic() > end, 11.0, step=0.02)
+
+    def close(self):
+        """Close the bag (writes metadata) and the statistics file."""
+        with self.lock:
+            if self.closed:
+                return
+            self.closed = True
+            self.writer.close()
+        self.get_logger().info(f'recorder: closed {self.path} with '
+                               f'{sum(self.counts.values())} messages')
+        self.stats.data.update(path=str(self.path), counts=self.counts)
+        self.stats.write()
+
+    def destroy_node(self):
+        """Close the bag before the node goes away."""
+        self.close()
+        return super().destroy_node()
+
+
+def main(args=None):
+    """Console script ``recorder``."""
+    return common.run(RecorderNode, args)
+
+
+if __name__ == '__main__':
+    main()

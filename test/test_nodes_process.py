@@ -1,0 +1,54 @@
+"""The node set as separate processes with the recorder (as ``ros2 run`` would start them)."""
+
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from rosbags.rosbag2 import Reader
+
+from mr_suspension.nodes import contract as c
+from mr_suspension.nodes.launch import _env, run_node_set
+
+ROAD = '{type: bump, height: 0.05, length: 2.0, speed: 10.0}'
+
+
+@pytest.mark.parametrize('lockstep', [True, False])
+def test_node_set_processes_agree_with_offline(tmp_path, lockstep):
+    res = run_node_set(tmp_path / 'run', duration=1.0, road=ROAD, controller='passive_1A',
+                       lockstep=lockstep, timeout=90.0)
+    assert res['returncodes'] == {'recorder': 0, 'controller': 0, 'actuator': 0, 'plant': 0}
+    counts = res['summary']['counts']
+    published = res['stats']['plant']['published']
+    assert published == 1001
+    for topic in c.published_by('plant'):
+        if topic != c.CLOCK or lockstep:
+            name = topic if topic == c.CLOCK else '/front_left/' + topic
+            assert counts[name] == published, topic  # nothing lost on the way to the bag
+    assert counts['/front_left/' + c.DAMPER_FORCE] == res['stats']['actuator']['motion_samples']
+    print('lockstep' if lockstep else 'realtime', res['agreement'],
+          res['stats']['plant'].get('steps_per_s'))
+    for key, diff in res['agreement'].items():
+        assert abs(diff) < (1e-6 if lockstep else 2.0), (key, diff)
+
+
+def test_recorder_closes_bag_on_sigterm(tmp_path):
+    bag = tmp_path / 'bag'
+    proc = subprocess.Popen([sys.executable, '-m', 'mr_suspension.nodes.recorder', '--ros-args',
+                             '-p', f'output:={bag}', '-p', 'storage:=sqlite3'],
+                            env=_env(77), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    try:
+        end = time.monotonic() + 30.0
+        while not (bag / 'bag.db3').exists() and time.monotonic() < end and proc.poll() is None:
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=20.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, out
+    assert 'closed' in out
+    with Reader(bag) as reader:
+        assert {x.topic for x in reader.connections} >= {'/imu/body', '/clock'}
