@@ -1,5 +1,7 @@
 """Plant, controller and actuator together, in-process, against the offline simulator."""
 
+import math
+
 import pytest
 import yaml
 
@@ -55,7 +57,8 @@ def stepper_reference(road, duration, controller):
     while not plant.done:
         # The IMU carries the specific force: gravity added by the plant, removed by the node.
         g = cfg.car.g
-        i = ctl.step((plant.a_s + g) - g, (plant.a_u + g) - g, plant.stroke, coil)
+        i = ctl.step((plant.a_s + g) - g, (plant.a_u + g) - g, plant.stroke,
+                     coil if plant.k else math.nan)
         coil, _, f, cd = act.step(i, plant.stroke, plant.stroke_rate)
         plant.step(f, cd)
         acc.append(plant.a_s)
@@ -65,14 +68,22 @@ def stepper_reference(road, duration, controller):
             'tyre_load_rms': rms(tyre)}
 
 
+@pytest.mark.parametrize('controller', ['passive_1A', 'skyhook_onoff'])
 @pytest.mark.parametrize('scenario', sorted(SCENARIOS))
-def test_lockstep_reproduces_offline_simulator(scenario):
+def test_lockstep_reproduces_offline_simulator(scenario, controller):
+    """Same step order as the simulator: exact for a passive law, 2 % for a switching one.
+
+    A switching law may flip on a rounding difference (the IMU carries the specific force, the
+    controller removes gravity again, the field slot holds the measured coil current).
+    """
     road = SCENARIOS[scenario]
-    nodes, late = run_in_process(road, 2.0, 'passive_1A', True)
-    offline = offline_summary(corner_config(controller='passive_1A'), road, 2.0)
+    nodes, late = run_in_process(road, 2.0, controller, True)
+    offline = offline_summary(corner_config(controller=controller), road, 2.0)
     assert late == 0
-    for key, diff in agreement(nodes, offline).items():
-        assert abs(diff) < 1e-6, (key, diff)
+    diffs = agreement(nodes, offline)
+    print(scenario, controller, 'lock-step', diffs)
+    for key, diff in diffs.items():
+        assert abs(diff) < (1e-6 if controller == 'passive_1A' else 2.0), (key, diff)
 
 
 def test_lockstep_skyhook_equals_core_steppers():
@@ -84,12 +95,13 @@ def test_lockstep_skyhook_equals_core_steppers():
         assert nodes[key] == pytest.approx(ref[key], rel=1e-6), key
 
 
+@pytest.mark.parametrize('controller', ['passive_1A', 'skyhook_onoff'])
 @pytest.mark.parametrize('scenario', ['bump', 'iso8608'])
-def test_realtime_within_two_percent(scenario):
+def test_realtime_within_two_percent(scenario, controller):
     road = SCENARIOS[scenario]
-    nodes, late = run_in_process(road, 2.0, 'passive_1A', False)
-    offline = offline_summary(corner_config(controller='passive_1A'), road, 2.0)
+    nodes, late = run_in_process(road, 2.0, controller, False)
+    offline = offline_summary(corner_config(controller=controller), road, 2.0)
     diffs = agreement(nodes, offline)
-    print(scenario, 'real time, late forces', late, diffs)
+    print(scenario, controller, 'real time, late forces', late, diffs)
     for key, diff in diffs.items():
         assert abs(diff) < 2.0, (key, diff)

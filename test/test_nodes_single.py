@@ -95,7 +95,7 @@ def test_controller_alone_lockstep_runs_the_law():
         for k in range(50):
             ns = k * 1_000_000
             a_s, a_u, x = math.sin(0.3 * k), math.cos(0.2 * k), 0.01 * math.sin(0.1 * k)
-            expect.append(ref.step(a_s, a_u, x, 0.5 if k else 0.0))
+            expect.append(ref.step(a_s + 9.81 - 9.81, a_u + 9.81 - 9.81, x, 0.5 if k else math.nan))
             h.pubs[c.IMU_BODY].publish(_imu(ns, a_s + 9.81))
             h.pubs[c.IMU_WHEEL].publish(_imu(ns, a_u + 9.81))
             h.pubs[c.STROKE].publish(_joint(ns, [x]))

@@ -7,10 +7,14 @@ command, evaluates the damper law at that stroke and rate and publishes ``damper
 and tangent ``dF/dv``, stamped with the motion sample) and the measured ``coil_current``
 (:class:`~mr_suspension.core.stepper.ActuatorStepper`).
 
+Real time: a motion sample is paired with the first command that arrives after it (the one
+the controller computed from the same sensor sample, normally); if none has arrived by the next
+motion sample, the newest command is applied (one sample of command latency). Lock-step pairs the
+``k``-th command with the ``k``-th motion sample.
+
 Commands are checked: NaN/inf are rejected (the previous valid command is held), values outside
 ``[current_min, current_max]`` are clamped, both with a throttled log. Before the first command,
 or when commands are older than ``command_timeout`` (real time), ``safe_current`` is applied.
-In lock-step the ``k``-th command is paired with the ``k``-th motion sample.
 """
 
 from collections import deque
@@ -71,6 +75,9 @@ class ActuatorNode(Node):
         self.have_command = False
         self.commands = deque()
         self.motions = deque()
+        self.pending = None
+        self.fresh = False
+        self.n_unpaired = 0
         self.n_rejected = 0
         self.n_clamped = 0
         self.n_commands = 0
@@ -101,6 +108,12 @@ class ActuatorNode(Node):
         if self.lockstep:
             self.commands.append(i)
             self._run_lockstep()
+        elif self.pending is not None:
+            self._apply(i, self.pending)
+            self.pending = None
+            self.fresh = False
+        else:
+            self.fresh = True
 
     def _on_motion(self, msg):
         if len(msg.position) <= SUSPENSION or len(msg.velocity) <= SUSPENSION:
@@ -116,9 +129,22 @@ class ActuatorNode(Node):
             self.motions.append(motion)
             self._run_lockstep()
             return
-        fresh = self.have_command and \
+        # Real time: pair the motion sample with the first command received after the previous
+        # sample was applied; if it has not come by the next motion sample, apply the newest.
+        if self.pending is not None:
+            self.n_unpaired += 1
+            self._apply(self._current_now(), self.pending)
+            self.pending = None
+        if self.fresh:
+            self.fresh = False
+            self._apply(self.command, motion)
+        else:
+            self.pending = motion
+
+    def _current_now(self):
+        recent = self.have_command and \
             time.monotonic() - self.command_time <= self.command_timeout
-        self._apply(self.command if fresh else self.safe_current, motion)
+        return self.command if recent else self.safe_current
 
     def _run_lockstep(self):
         while self.commands and self.motions:
@@ -143,6 +169,7 @@ class ActuatorNode(Node):
     def close(self):
         """Write the statistics file."""
         self.stats.data.update(commands=self.n_commands, motion_samples=self.n_motion,
+                               unpaired=self.n_unpaired,
                                rejected=self.n_rejected, clamped=self.n_clamped)
         self.stats.write()
 

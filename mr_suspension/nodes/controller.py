@@ -3,14 +3,20 @@
 Subscribes only to what a car's sensors give: ``imu/body``, ``imu/wheel`` (specific force,
 gravity removed here), ``stroke`` and the driver's measured ``coil_current``; never to ground
 truth. Fills the measurement vector of :mod:`mr_suspension.control.laws` and runs the configured
-law (:class:`~mr_suspension.core.stepper.ControllerStepper`, which also estimates the
-velocities), publishes ``current_command``.
+law (:class:`~mr_suspension.core.stepper.ControllerStepper`; the control core estimates body
+velocity and stroke rate from these sensors), publishes ``current_command``. The measured coil
+current fills the field-current slot (NaN until the first one: the core then uses its last
+command).
 
-* Real time: a timer at ``rate`` uses the newest sample of every sensor. If any sensor is older
-  than ``sensor_timeout`` (or never arrived, or carries NaN) it publishes ``fallback_current``
+* ``trigger: sample`` (default): the law runs once per sensor sample, as soon as the three
+  sensor messages with the same stamp are in (the sensors' fixed rate; no added latency).
+  ``trigger: timer``: a wall timer at ``rate`` runs the law on the newest value of every sensor
+  (for sensor drivers whose stamps are not synchronised).
+* Real time (both triggers): a watchdog at ``rate``: if any sensor is older than
+  ``sensor_timeout`` (or never arrived), or a value is NaN, it publishes ``fallback_current``
   instead and logs it once per episode (and the recovery).
-* Lock-step: runs once per sample, when the three sensor messages of the same stamp (and the
-  coil current of the step before) are in.
+* Lock-step: sample trigger that also waits for the coil current of the step before, so the
+  run is deterministic; no watchdog (the plant waits for the loop).
 """
 
 import math
@@ -43,6 +49,10 @@ class ControllerNode(Node):
                                              'this trigger the fallback [s]', 0.0005, 10.0)
         self.fallback_current = common.declare(self, d, 'fallback_current', 'Safe fixed '
                                                'current while sensors are stale [A]', 0.0, 10.0)
+        self.trigger = common.declare(self, d, 'trigger', 'Run the law per complete sensor '
+                                      'sample ("sample") or on a wall timer ("timer")')
+        if self.trigger not in ('sample', 'timer'):
+            raise ValueError(f'controller: trigger must be sample or timer, got {self.trigger!r}')
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
                                                  'as JSON here on exit ("" = off)'))
         self.stepper = ControllerStepper(self.config)
@@ -59,7 +69,7 @@ class ControllerNode(Node):
         self.latest = {c.IMU_BODY: None, c.IMU_WHEEL: None, c.STROKE: None}
         self.arrival = dict.fromkeys(self.latest, -math.inf)
         self.coil = []
-        self.coil_latest = 0.0
+        self.coil_latest = math.nan
         self.pending = {}
         self.k = 0
         self.fallback = False
@@ -78,9 +88,9 @@ class ControllerNode(Node):
         self.n_sensor[topic] += 1
         self.latest[topic] = value
         self.arrival[topic] = time.monotonic()
-        if self.lockstep:
+        if self.lockstep or self.trigger == 'sample':
             self.pending.setdefault(common.stamp_to_ns(stamp), {})[topic] = value
-            self._run_lockstep()
+            self._run_samples()
 
     def _on_imu_s(self, msg):
         self._store(c.IMU_BODY, msg.header.stamp, msg.linear_acceleration.z - self.gravity)
@@ -96,7 +106,7 @@ class ControllerNode(Node):
         self.coil_latest = float(msg.data)
         if self.lockstep:
             self.coil.append(float(msg.data))
-            self._run_lockstep()
+            self._run_samples()
 
     # -- control ---------------------------------------------------------------------------
 
@@ -114,32 +124,44 @@ class ControllerNode(Node):
             if self.fallback:
                 self.get_logger().info('controller: sensors are back; control law resumed')
             self.fallback = False
-            i_cmd = self.stepper.step(acc_s, acc_u, x, field if math.isfinite(field) else 0.0)
+            i_cmd = self.stepper.step(acc_s, acc_u, x, field)
         self.msg.data = float(i_cmd)
         self.pub_cmd.publish(self.msg)
         self.n_cmd += 1
 
-    def _on_tick(self):
+    def _stale(self):
         now = time.monotonic()
         stale = [t for t in self.latest
                  if self.latest[t] is None or now - self.arrival[t] > self.sensor_timeout]
-        reason = None
         if stale:
-            reason = f'sensor data stale for more than {self.sensor_timeout:g} s ' \
-                     f'({", ".join(stale)})'
-            self._command(0.0, 0.0, 0.0, 0.0, reason)
-            return
-        self._command(self.latest[c.IMU_BODY], self.latest[c.IMU_WHEEL],
-                      self.latest[c.STROKE], self.coil_latest, None)
+            return f'sensor data stale for more than {self.sensor_timeout:g} s ' \
+                f'({", ".join(stale)})'
+        return None
 
-    def _run_lockstep(self):
+    def _on_tick(self):
+        reason = self._stale()
+        if reason is not None:
+            self._command(0.0, 0.0, 0.0, 0.0, reason)
+        elif self.trigger == 'timer':
+            self._command(self.latest[c.IMU_BODY], self.latest[c.IMU_WHEEL],
+                          self.latest[c.STROKE], self.coil_latest, None)
+
+    def _run_samples(self):
         while self.pending:
             key = min(self.pending)
             sample = self.pending[key]
-            if len(sample) < 3 or len(self.coil) < self.k:
-                return
+            if len(sample) < 3:
+                if self.lockstep or len(self.pending) < 8:
+                    return
+                del self.pending[key]  # real time: a sample never completed (message lost)
+                continue
+            if self.lockstep:
+                if len(self.coil) < self.k:
+                    return
+                field = self.coil[self.k - 1] if self.k > 0 else math.nan
+            else:
+                field = self.coil_latest
             del self.pending[key]
-            field = self.coil[self.k - 1] if self.k > 0 else 0.0
             self._command(sample[c.IMU_BODY], sample[c.IMU_WHEEL], sample[c.STROKE], field,
                           None)
             self.k += 1

@@ -1,0 +1,107 @@
+"""Evaluation runner, scenarios, tables and the ``evaluate`` command."""
+
+import argparse
+import json
+import math
+
+import numpy as np
+import pytest
+
+from mr_suspension.core import config as cfg
+from mr_suspension.core.quarter_car import QuarterCarParams
+from mr_suspension.evaluation import cli, runner, scenarios as scn, tables
+
+
+def test_scenario_groups_and_names():
+    assert scn.expand('quick') == ['step', 'bump', 'iso_C_20']
+    assert len(scn.expand('iso')) == 12
+    assert scn.expand(['step,bump', 'step']) == ['step', 'bump']
+    assert scn.make('iso_B_30').road.duration == pytest.approx(scn.ISO_DURATION)
+    assert scn.make('harmonic_2.5').kind == 'harmonic'
+    for bad in ('iso_Z_20', 'iso_C_fast', 'teleport'):
+        with pytest.raises(ValueError):
+            scn.make(bad)
+    with pytest.raises(ValueError):
+        scn.expand(' , ')
+
+
+def test_linear_passive_run_matches_closed_form_response():
+    # A linear damper at 1 Hz: the simulated stroke amplitude equals |H(j w)| of the
+    # closed-form quarter car (seed 001 eqs. 2-3 with tyre damping).
+    from mr_suspension.core.damper import LinearDamperParams
+    from mr_suspension.core.metrics import sine_gain
+    from mr_suspension.core.simulator import simulate
+    car = cfg.load_vehicle('seed003_passenger')
+    conf = runner.build_config('passive_0A', car, LinearDamperParams(c=1500.0), 'ideal')
+    res = simulate(conf, scn.make('harmonic_1.5').road)
+    expected = abs(QuarterCarParams.transfer(car, 1.5, 1500.0)['stroke']) * 0.01
+    assert sine_gain(res.t, res.stroke, 1.5, 4) == pytest.approx(expected, rel=2e-3)
+
+
+def test_run_rows_and_relative_table():
+    rows = runner.run(['passive_0A', 'skyhook'], ['bump'], driver='ideal')
+    assert [r['law'] for r in rows] == ['passive_0A', 'skyhook']
+    for r in rows:
+        for key in runner.METRICS:
+            assert math.isfinite(r[key]) and r[key] >= 0.0
+    rel = tables.relative(rows, 'passive_0A')
+    assert all(v == 0.0 for k, v in rel[0].items() if k not in ('law', 'scenario'))
+    text = tables.markdown(rows)
+    assert text.count('\n') == 3 and 'skyhook' in text
+    assert '+' in tables.markdown(rel, percent=True) or '-' in tables.markdown(rel, True)
+    mean = tables.summary_by_law(rows)
+    assert {m['law'] for m in mean} == {'passive_0A', 'skyhook'}
+
+
+def test_overrides_and_actuator_scale():
+    conf = runner.build_config('skyhook', overrides={'skyhook': {'c_sky': 1234.0},
+                                                     '*': {'estimation': 'ideal'}},
+                               actuator_scale=2.0)
+    assert conf.controller.c_sky == 1234.0 and conf.controller.estimation == 'ideal'
+    wb = cfg.load_driver('wonder_box')
+    assert conf.driver.fluid_tau_fall == pytest.approx(2.0 * wb.fluid_tau_fall)
+    assert runner.scaled_driver(wb, 0.0).dead_time == 0.0
+    with pytest.raises(ValueError):
+        runner.scaled_driver(wb, -1.0)
+    with pytest.raises(ValueError):
+        runner.build_config('nonexistent_law')
+    with pytest.raises(ValueError):
+        runner.build_config('skyhook', overrides={'skyhook': {'c_sky': -5.0}})
+
+
+def test_passive_sweep_and_tune():
+    met = runner.passive_sweep([0.0, 1.0], 'bump')
+    # Harder damping: less working space (seed 001 Fig. 9 direction).
+    assert met['working_space_rms'][1] < met['working_space_rms'][0]
+    best, values, obj, _ = runner.tune('skyhook_onoff', 'i_max', [0.1, 0.5], 'bump')
+    assert best in values and obj.shape == (2,)
+    with pytest.raises(ValueError):
+        runner.tune('skyhook', 'c_sky', [], 'bump')
+    with pytest.raises(ValueError):
+        runner.passive_sweep([1.0], 'bump', kind='magic')
+
+
+def test_cli_help_and_run(tmp_path, capsys):
+    parser = argparse.ArgumentParser(prog='mr-suspension')
+    sub = parser.add_subparsers(dest='command')
+    cli.register(sub)
+    with pytest.raises(SystemExit):
+        parser.parse_args(['evaluate', '--help'])
+    assert 'scenarios' in capsys.readouterr().out
+    out = tmp_path / 'ev'
+    assert cli.main(['--laws', 'passive_0A,pdd', '--scenarios', 'bump', '--study',
+                     'tradeoff', '--set', 'pdd.i_max=1.5', '--out', str(out)]) == 0
+    rows = json.loads((out / 'metrics.json').read_text())
+    assert {r['law'] for r in rows} == {'passive_0A', 'pdd'}
+    assert (out / 'report.md').is_file() and (out / 'time_bump.png').is_file()
+    assert (out / 'metrics.csv').read_text().startswith('law,scenario')
+    for bad in (['--set', 'nodot=1'], ['--study', 'astrology'], ['--scenarios', 'mars']):
+        with pytest.raises(SystemExit):
+            cli.main(['--laws', 'passive_0A', '--scenarios', 'bump', '--no-plots', '--out',
+                      str(out)] + bad)
+
+
+def test_tables_reject_empty(tmp_path):
+    with pytest.raises(ValueError):
+        tables.write_csv([], tmp_path / 'x.csv')
+    assert np.isnan(tables.relative([{'law': 'a', 'scenario': 's', 'vdv': 1.0}], 'b')[0]['vdv'])
