@@ -13,8 +13,9 @@ from mr_suspension.core.simulator import CornerConfig, simulate, simulate_batch
 
 
 def _corner(**kw):
-    base = dict(car=config.load_vehicle('city_car'), damper=config.load_damper('rd1005_bingham'),
-                driver=config.load_driver('wonder_box'))
+    base = {'car': config.load_vehicle('city_car'),
+            'damper': config.load_damper('rd1005_bingham'),
+            'driver': config.load_driver('wonder_box')}
     base.update(kw)
     return CornerConfig(**base)
 

@@ -301,8 +301,8 @@ def mechanical_force(p, s, x, v, i, dt):
     """Seed 000 series model; implicit Euler on the internal coordinate ``xi`` (s[0]).
 
     Solves ``d(u, i) + k1 dt u = k1 (x - xi_n)`` for ``u = xi_dot`` by Newton safeguarded
-    with bisection (the left side is monotone in ``u``), then ``xi += dt u``. Tangent: ``d'`` in series with
-    ``k1 dt``.
+    with bisection (the left side is monotone in ``u``), then ``xi += dt u``. Tangent: ``d'``
+    in series with ``k1 dt``.
     """
     k1 = p[0]
     rhs = k1 * (x - s[0])
