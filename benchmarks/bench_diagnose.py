@@ -81,7 +81,8 @@ def main(argv=None):
         else:
             pair_ok[1] += 1
             pair_ok[0] += set(causes) == set(effs) and res['verdict'] == 'named'
-        print(f'case {k:3d} truth={"+".join(effs) or "none":45s} found={"+".join(causes) or "none":45s}'
+        found = '+'.join(causes) or 'none'
+        print(f'case {k:3d} truth={"+".join(effs) or "none":45s} found={found:45s}'
               f' verdict={res["verdict"]:9s} nrmse/floor={nrmse / floor:.3f}', flush=True)
     print(f'\n{len(cases)} cases, {args.duration:g} s records at 1 kHz, '
           f'{time.time() - t_all:.0f} s total')

@@ -39,7 +39,7 @@ def test_nodes_and_recorder_follow_contract(tmp_path):
                                                     parameter_overrides=lock)),
             'recorder': add(ex, nodes, RecorderNode(
                 context=ctx, namespace=ns, parameter_overrides=params(
-                    output=str(tmp_path / 'bag'), use_sim_time=True))),
+                    output=str(tmp_path / 'bag'), use_sim_time=True, lockstep=True))),
         }
         for name, node in made.items():
             full = {t: node.resolve_topic_name(t) for t in c.TOPICS}

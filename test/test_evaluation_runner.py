@@ -105,3 +105,17 @@ def test_tables_reject_empty(tmp_path):
     with pytest.raises(ValueError):
         tables.write_csv([], tmp_path / 'x.csv')
     assert np.isnan(tables.relative([{'law': 'a', 'scenario': 's', 'vdv': 1.0}], 'b')[0]['vdv'])
+
+
+def test_cli_tune(tmp_path, capsys):
+    out = tmp_path / 'tune'
+    assert cli.main(['--laws', 'skyhook_onoff', '--scenarios', 'bump', '--study', 'none',
+                     '--no-plots', '--tune', 'skyhook_onoff.i_max=0.1,0.4', '--objective',
+                     'working_space_rms', '--out', str(out)]) == 0
+    text = capsys.readouterr().out
+    # More on-state current, less working space: the grid search must pick 0.4 A.
+    assert 'best 0.4' in text
+    assert 'Tuning skyhook_onoff.i_max' in (out / 'report.md').read_text()
+    with pytest.raises(SystemExit):
+        cli.main(['--laws', 'skyhook', '--scenarios', 'bump', '--no-plots', '--study', 'none',
+                  '--tune', 'skyhook.c_sky=', '--out', str(out)])

@@ -24,7 +24,7 @@ SCENARIOS = {
 
 def run_in_process(road, duration, controller, lockstep):
     """Run the three nodes in one executor; return the summary of the plant's samples."""
-    common_p = dict(lockstep=lockstep, controller=controller)
+    common_p = {'lockstep': lockstep, 'controller': controller}
     with ros_context() as (ctx, ex, nodes):
         plant = add(ex, nodes, PlantNode(context=ctx, parameter_overrides=params(
             road=road, duration=duration, start_delay=0.05, exit_at_end=False, **common_p)))
@@ -47,7 +47,7 @@ def run_in_process(road, duration, controller, lockstep):
 
 
 def stepper_reference(road, duration, controller):
-    """The core steppers in the node set's order, with sensor-only measurements."""
+    """Run the core steppers in the node set's order, with sensor-only measurements."""
     cfg = corner_config(controller=controller)
     spec = yaml.safe_load(road)
     plant = PlantStepper(cfg, rd.from_spec(spec, duration=duration, dt=cfg.dt))
@@ -68,40 +68,50 @@ def stepper_reference(road, duration, controller):
             'tyre_load_rms': rms(tyre)}
 
 
-@pytest.mark.parametrize('controller', ['passive_1A', 'skyhook_onoff'])
 @pytest.mark.parametrize('scenario', sorted(SCENARIOS))
-def test_lockstep_reproduces_offline_simulator(scenario, controller):
-    """Same step order as the simulator: exact for a passive law, 2 % for a switching one.
-
-    A switching law may flip on a rounding difference (the IMU carries the specific force, the
-    controller removes gravity again, the field slot holds the measured coil current).
-    """
+def test_lockstep_reproduces_offline_simulator(scenario):
+    """Same step order as the simulator: a passive law agrees to rounding."""
     road = SCENARIOS[scenario]
-    nodes, late = run_in_process(road, 2.0, controller, True)
-    offline = offline_summary(corner_config(controller=controller), road, 2.0)
+    nodes, late = run_in_process(road, 2.0, 'passive_1A', True)
+    offline = offline_summary(corner_config(controller='passive_1A'), road, 2.0)
     assert late == 0
     diffs = agreement(nodes, offline)
-    print(scenario, controller, 'lock-step', diffs)
+    print(scenario, 'passive_1A lock-step', diffs)
     for key, diff in diffs.items():
-        assert abs(diff) < (1e-6 if controller == 'passive_1A' else 2.0), (key, diff)
+        assert abs(diff) < 1e-6, (key, diff)
 
 
-def test_lockstep_skyhook_equals_core_steppers():
-    """With a sensor-based law the node set equals the core run on the same measurements."""
-    road = SCENARIOS['bump']
+@pytest.mark.parametrize('scenario', ['bump', 'step'])
+def test_lockstep_skyhook_equals_core_steppers(scenario):
+    """With a switching sensor-based law the node set equals the core on the same measurements.
+
+    (Not compared with the offline simulator to 2 %: at rest its accelerations are rounding
+    noise, ~1e-17 m/s^2, that the IMU's specific force ``a + g`` rounds to zero, and the on-off
+    skyhook switches on that noise before the road starts; see docs/nodes.md.)
+    """
+    road = SCENARIOS[scenario]
     nodes, _ = run_in_process(road, 2.0, 'skyhook_onoff', True)
     ref = stepper_reference(road, 2.0, 'skyhook_onoff')
     for key in ref:
-        assert nodes[key] == pytest.approx(ref[key], rel=1e-6), key
+        assert nodes[key] == pytest.approx(ref[key], rel=1e-9), key
 
 
 @pytest.mark.parametrize('controller', ['passive_1A', 'skyhook_onoff'])
 @pytest.mark.parametrize('scenario', ['bump', 'iso8608'])
-def test_realtime_within_two_percent(scenario, controller):
+def test_realtime_agrees(scenario, controller):
+    """Real time, one executor for all three nodes (the worst case for late forces).
+
+    Passive law against the offline simulator; the on-off skyhook against the lock-step result
+    (the core steppers), which isolates what real time changes: late forces (tangent coupling)
+    and one sample of command latency.
+    """
     road = SCENARIOS[scenario]
     nodes, late = run_in_process(road, 2.0, controller, False)
-    offline = offline_summary(corner_config(controller=controller), road, 2.0)
-    diffs = agreement(nodes, offline)
+    if controller == 'passive_1A':
+        ref = offline_summary(corner_config(controller=controller), road, 2.0)
+    else:
+        ref = stepper_reference(road, 2.0, controller)
+    diffs = agreement(nodes, ref)
     print(scenario, controller, 'real time, late forces', late, diffs)
     for key, diff in diffs.items():
         assert abs(diff) < 2.0, (key, diff)

@@ -18,10 +18,10 @@ NS = '/front_left'
 
 
 def record_run(path, storage, duration=0.3):
-    lock = dict(lockstep=True, use_sim_time=True)
+    lock = {'lockstep': True, 'use_sim_time': True}
     with ros_context() as (ctx, ex, nodes):
         rec = add(ex, nodes, RecorderNode(context=ctx, namespace=NS, parameter_overrides=params(
-            output=str(path), storage=storage, use_sim_time=True)))
+            output=str(path), storage=storage, use_sim_time=True, lockstep=True)))
         plant = add(ex, nodes, PlantNode(context=ctx, namespace=NS, parameter_overrides=params(
             lockstep=True, duration=duration, start_delay=0.05, exit_at_end=False,
             expect_subscribers=2)))

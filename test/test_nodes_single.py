@@ -20,12 +20,12 @@ from mr_suspension.nodes.testing import add, params, ros_context
 class Harness(Node):
     """Test peer: publishes and records any contract topics."""
 
-    def __init__(self, context, pubs=(), subs=()):
+    def __init__(self, context, pubs=(), subs=(), lockstep=False):
         super().__init__('harness', context=context)
-        self.pubs = {t: self.create_publisher(_cls(t), t, common.qos(t)) for t in pubs}
+        self.pubs = {t: self.create_publisher(_cls(t), t, common.qos(t, lockstep)) for t in pubs}
         self.got = {t: [] for t in subs}
         for t in subs:
-            self.create_subscription(_cls(t), t, self.got[t].append, common.qos(t))
+            self.create_subscription(_cls(t), t, self.got[t].append, common.qos(t, lockstep))
 
 
 def _cls(topic):
@@ -57,7 +57,7 @@ def test_plant_alone_lockstep_matches_stepper():
             road='{type: step, height: 0.03, t0: 0.01}')))
         h = add(ex, nodes, Harness(ctx, pubs=(c.DAMPER_FORCE, c.CURRENT_COMMAND),
                                    subs=(c.IMU_BODY, c.TRUTH_STATE, c.CURRENT_COMMAND,
-                                         c.STROKE)))
+                                         c.STROKE), lockstep=True))
 
         def answer(msg):
             v = msg.velocity[3]
@@ -66,7 +66,8 @@ def test_plant_alone_lockstep_matches_stepper():
             out.effort = [c_lin * v, c_lin]
             h.pubs[c.DAMPER_FORCE].publish(out)
 
-        h.create_subscription(JointState, c.TRUTH_STATE, answer, common.qos(c.TRUTH_STATE))
+        h.create_subscription(JointState, c.TRUTH_STATE, answer,
+                              common.qos(c.TRUTH_STATE, True))
         assert common.spin_until(ex, lambda: plant.plant.done, 20.0)
         common.spin_until(ex, lambda: len(h.got[c.IMU_BODY]) > 200, 2.0)
     ref = PlantStepper(plant.config, rd.step(height=0.03, t0=0.01, duration=0.2))
@@ -86,16 +87,17 @@ def test_controller_alone_lockstep_runs_the_law():
     cfg = corner_config()
     ref = ControllerStepper(cfg)
     with ros_context() as (ctx, ex, nodes):
-        ctl = add(ex, nodes, ControllerNode(context=ctx, parameter_overrides=params(
-            lockstep=True)))
+        add(ex, nodes, ControllerNode(context=ctx, parameter_overrides=params(lockstep=True)))
         h = add(ex, nodes, Harness(ctx, pubs=(c.IMU_BODY, c.IMU_WHEEL, c.STROKE,
-                                              c.COIL_CURRENT), subs=(c.CURRENT_COMMAND,)))
+                                              c.COIL_CURRENT), subs=(c.CURRENT_COMMAND,),
+                                   lockstep=True))
         assert common.spin_until(ex, lambda: h.pubs[c.STROKE].get_subscription_count(), 5.0)
         expect = []
         for k in range(50):
             ns = k * 1_000_000
             a_s, a_u, x = math.sin(0.3 * k), math.cos(0.2 * k), 0.01 * math.sin(0.1 * k)
-            expect.append(ref.step(a_s + 9.81 - 9.81, a_u + 9.81 - 9.81, x, 0.5 if k else math.nan))
+            expect.append(ref.step(a_s + 9.81 - 9.81, a_u + 9.81 - 9.81, x,
+                                   0.5 if k else math.nan))
             h.pubs[c.IMU_BODY].publish(_imu(ns, a_s + 9.81))
             h.pubs[c.IMU_WHEEL].publish(_imu(ns, a_u + 9.81))
             h.pubs[c.STROKE].publish(_joint(ns, [x]))
@@ -150,7 +152,7 @@ def test_actuator_rejects_and_clamps_invalid_commands():
         act = add(ex, nodes, ActuatorNode(context=ctx, parameter_overrides=params(
             lockstep=True, current_max=2.0)))
         h = add(ex, nodes, Harness(ctx, pubs=(c.CURRENT_COMMAND, c.TRUTH_STATE),
-                                   subs=(c.DAMPER_FORCE, c.COIL_CURRENT)))
+                                   subs=(c.DAMPER_FORCE, c.COIL_CURRENT), lockstep=True))
         assert common.spin_until(
             ex, lambda: h.pubs[c.CURRENT_COMMAND].get_subscription_count(), 5.0)
         commands = [0.5, math.nan, 5.0, -1.0, math.inf, 1.0]

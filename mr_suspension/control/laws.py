@@ -12,6 +12,12 @@ at start, updated in place) and the measurement vector ``m`` (length ``N_MEAS``)
     m[M_VEL_U]        wheel velocity [m/s]       (NaN if not measured)
     m[M_FIELD]        field current estimate [A] (NaN if unknown; the last command is used)
 
+State ``s`` (``N_CTRL_STATE`` floats): ``[0, 4)`` estimator (body velocity, stroke rate, last
+stroke, initialised flag), ``[4, 8)`` FEBC, ``8`` last command, ``[16, 32)`` scratch of the
+inverse model, ``[32, 48)`` the controller's copy of the damper-model state. Parameters ``p``:
+``P_*`` below, then the damper-model parameters from ``P_DP`` on (the array length depends on
+the damper law; the simulator pads it).
+
 The result is the coil-current command [A], clamped to ``[i_min, i_max]`` by
 :func:`clamp_current` (NaN gives ``i_min``). With ``estimation='sensors'`` (default) the laws
 use only accelerations and stroke, and estimate the velocities inside ``s``
@@ -64,7 +70,7 @@ N_MEAS = 7
 # inverse scratch [16, 32), damper-model state [32, 48).
 S_EST = 0
 S_FEBC = 4
-S_ILAST, S_VPEAK = 8, 9
+S_ILAST = 8
 S_TMP = 16
 S_DMP = 32
 N_DMP_STATE = 16
@@ -82,12 +88,12 @@ ESTIMATION = {'sensors': 0.0, 'ideal': 1.0}
 # Parameter array layout: [i_min, i_max, law-specific..., damper model].
 (P_IMIN, P_IMAX, P_CURRENT, P_CSKY, P_CGND, P_ALPHA, P_FCROSS, P_KS, P_K0, P_K1, P_K2, P_K3,
  P_EST, P_FHP, P_FCR, P_FLP, P_MS, P_MU, P_KT, P_F1, P_F2, P_IROAD, P_FTAU, P_XBAND,
- P_IBODY, P_FSTAT, P_DLAW, P_DN, P_DP) = range(29)
+ P_IBODY, P_VEPS, P_AEPS, P_FSTAT, P_DLAW, P_DN, P_DP) = range(31)
 N_CTRL_FIXED = P_DP
 
 # Default inverse model: RD-1005-3 class smooth Bingham (config/dampers/rd1005_bingham.yaml).
-DEFAULT_DAMPER_MODEL = {'law': 'bingham', 'f0': 0.0, 'c0': 600.0, 'c1': 1800.0, 'fc0': 40.0,
-                        'fc1': 850.0, 'v_y': 0.02}
+DEFAULT_DAMPER_MODEL = {'law': 'bingham', 'f0': 0.0, 'c0': 400.0, 'c1': 1200.0, 'fc0': 20.0,
+                        'fc1': 400.0, 'v_y': 0.02}
 
 
 def _damper_from(model):
@@ -120,7 +126,9 @@ class ControllerParams:
     ``febc_i_road`` [A], smoothing
     ``febc_tau`` [s], crossing hysteresis ``febc_x_band`` [m]. Estimation: ``'sensors'`` or
     ``'ideal'``, body-velocity leak ``f_hp``, stroke-rate crossover ``f_cr`` and derivative
-    cutoff ``f_lp`` [Hz]. Plant knowledge (PDD, clipped optimal, tyre-deflection estimate):
+    cutoff ``f_lp`` [Hz]; ``v_eps`` [m/s] and ``a_eps`` [m/s^2] are the resolutions below
+    which a velocity or acceleration counts as zero (at rest, sensor and round-off noise must
+    not toggle the on-off laws). Plant knowledge (PDD, clipped optimal, tyre-deflection estimate):
     ``m_s, m_u`` [kg], ``k_s, k_t, c_t``; ``damper_model``: the inverse model (damper YAML
     mapping with ``law``, a ``config/dampers`` name, or ``None`` for an RD-1005 class Bingham
     law). :meth:`with_plant` copies all of these from the simulated corner.
@@ -146,11 +154,13 @@ class ControllerParams:
     f_hp: float = 0.1
     f_cr: float = 2.0
     f_lp: float = 40.0
-    m_s: float = 241.5
-    m_u: float = 41.5
-    k_s: float = 6000.0
-    k_t: float = 14000.0
-    c_t: float = 1500.0
+    v_eps: float = 1e-4
+    a_eps: float = 1e-3
+    m_s: float = 110.0
+    m_u: float = 18.0
+    k_s: float = 11000.0
+    k_t: float = 110000.0
+    c_t: float = 50.0
     damper_model: object = field(default=None)
 
     def __post_init__(self):
@@ -162,7 +172,7 @@ class ControllerParams:
                              f'got {self.estimation!r}')
         check_nonneg(owner, i_min=self.i_min, current=self.current, c_sky=self.c_sky,
                      c_ground=self.c_ground, febc_i_road=self.febc_i_road,
-                     febc_i_body=self.febc_i_body,
+                     febc_i_body=self.febc_i_body, v_eps=self.v_eps, a_eps=self.a_eps,
                      febc_x_band=self.febc_x_band, c_t=self.c_t)
         check_positive(owner, i_max=self.i_max, f_cross=self.f_cross, febc_f1=self.febc_f1,
                        febc_f2=self.febc_f2, febc_tau=self.febc_tau, f_hp=self.f_hp,
@@ -213,12 +223,17 @@ class ControllerParams:
         from mr_suspension.control.inverse import static_force
         model = self._model
         dp = model.to_array()
+        law = dmp.law_id_of(model)
+        if law != dmp.LAW_TANH_MAXVEL and dmp.n_state_of(model) > N_DMP_STATE:
+            raise ValueError(f'ControllerParams: the inverse keeps at most {N_DMP_STATE} '
+                             f'damper-model states, {model.law} needs {dmp.n_state_of(model)}')
         k = self.gains() if self.law == 'clipped_optimal' else np.zeros(4)
         head = [self.i_min, self.i_max, self.current, self.c_sky, self.c_ground, self.alpha,
                 self.f_cross, self.k_s, k[0], k[1], k[2], k[3], ESTIMATION[self.estimation],
                 self.f_hp, self.f_cr, self.f_lp, self.m_s, self.m_u, self.k_t, self.febc_f1,
                 self.febc_f2, self.febc_i_road, self.febc_tau, self.febc_x_band,
-                self.febc_i_body, static_force(model), float(dmp.law_id_of(model)), float(dp.size)]
+                self.febc_i_body, self.v_eps, self.a_eps, static_force(model),
+                float(dmp.law_id_of(model)), float(dp.size)]
         return np.concatenate([np.array(head, dtype=np.float64), dp])
 
     def to_dict(self):
@@ -290,6 +305,9 @@ GAIN_DESCRIPTIONS = {
     'f_hp': 'estimator: body-velocity leak corner [Hz]',
     'f_cr': 'estimator: stroke-rate complementary crossover [Hz]',
     'f_lp': 'estimator: stroke-rate derivative cutoff without wheel accelerometer [Hz]',
+    'v_eps': 'velocity resolution [m/s]: smaller velocities count as zero (no switching on '
+             'noise)',
+    'a_eps': 'acceleration resolution [m/s^2]: smaller accelerations count as zero',
     'm_s': 'plant knowledge: body mass [kg]',
     'm_u': 'plant knowledge: wheel mass [kg]',
     'k_s': 'plant knowledge: spring stiffness [N/m] (PDD, clipped optimal)',
@@ -378,6 +396,15 @@ def controller_step(cid, p, s, m, dt):
     if not x == x:
         x = 0.0
     if not a_s == a_s:
+        a_s = 0.0
+    # Resolution: values below it count as zero, so noise at rest cannot switch the laws.
+    if abs(v_s) < p[P_VEPS]:
+        v_s = 0.0
+    if abs(v) < p[P_VEPS]:
+        v = 0.0
+    if abs(v_u) < p[P_VEPS]:
+        v_u = 0.0
+    if abs(a_s) < p[P_AEPS]:
         a_s = 0.0
     # Keep the inverse model's state in step with the damper (field estimate or last command).
     i_field = m[M_FIELD] if m[M_FIELD] == m[M_FIELD] else s[S_ILAST]

@@ -30,6 +30,7 @@ examples:
   mr-suspension evaluate --laws passive_0A,skyhook,pdd --scenarios quick
   mr-suspension evaluate --scenarios iso --set skyhook.c_sky=3000 --set '*.estimation=ideal'
   mr-suspension evaluate --actuator-scale 2 --delay 0.01 --study degradation,bounds
+  mr-suspension evaluate --laws skyhook --tune skyhook.c_sky=500,1000,2000,4000
 """
 
 
@@ -44,6 +45,17 @@ def _parse_sets(items):
     return out
 
 
+def _parse_tune(item):
+    if '=' not in item or '.' not in item.split('=', 1)[0]:
+        raise ValueError(f'--tune expects law.param=v1,v2,..., got {item!r}')
+    key, values = item.split('=', 1)
+    law, param = key.split('.', 1)
+    vals = [yaml.safe_load(v) for v in values.split(',') if v.strip()]
+    if not vals:
+        raise ValueError(f'--tune {item!r}: no values')
+    return law, param, vals
+
+
 def _laws(text):
     if text in (None, '', 'all'):
         return list(runner.DEFAULT_LAWS)
@@ -53,11 +65,11 @@ def _laws(text):
 def add_arguments(parser):
     """Add the evaluate options to ``parser``."""
     parser.add_argument('--laws', default='all',
-                        help='comma-separated controller sets or law names (default: all '
-                             'sets: %(default)s)')
+                        help="comma-separated controller sets or law names (default: 'all', "
+                             'the sets listed below)')
     parser.add_argument('--scenarios', default='quick',
                         help='comma-separated scenarios or groups (default: %(default)s)')
-    parser.add_argument('--vehicle', default='seed003_passenger',
+    parser.add_argument('--vehicle', default='city_car',
                         help='config/vehicles name or YAML path (default: %(default)s)')
     parser.add_argument('--damper', default='rd1005_bingham',
                         help='config/dampers name or YAML path (default: %(default)s)')
@@ -74,6 +86,11 @@ def add_arguments(parser):
     parser.add_argument('--set', action='append', default=[], metavar='LAW.PARAM=VALUE',
                         help="override a gain, e.g. skyhook.c_sky=3000; '*' for all laws "
                              '(repeatable)')
+    parser.add_argument('--tune', action='append', default=[], metavar='LAW.PARAM=V1,V2,...',
+                        help='grid-search one gain on the first random scenario (or iso_C_20) '
+                             'and report the best value for --objective (repeatable)')
+    parser.add_argument('--objective', default='body_acc_wk_rms',
+                        help='index minimised by --tune (default: %(default)s)')
     parser.add_argument('--reference', default='passive_0A',
                         help='law the relative table compares with (default: %(default)s)')
     parser.add_argument('--study', default='tradeoff',
@@ -167,12 +184,18 @@ def run_evaluate(args, log=print):
             if sc_kind == 'transient':
                 plots.time_histories({law: kept[(law, name)] for law in laws},
                                      out / f'time_{name}.png', f'{name}', t_max=6.0)
-    if 'tradeoff' in studies_ and not args.no_plots:
+    if 'tradeoff' in studies_:
         ref = 'iso_C_20' if 'iso_C_20' in names else names[-1]
         sweep = runner.passive_sweep(np.linspace(0.0, 2.0, 21), ref, args.vehicle, args.damper)
         sweep['label'] = 'passive 0..2 A'
-        plots.tradeoff(rows, out / f'tradeoff_{ref}.png', sweep, ref,
-                       f'comfort vs working space and road holding, {ref}')
+        if not args.no_plots:
+            plots.tradeoff(rows, out / f'tradeoff_{ref}.png', sweep, ref,
+                           f'comfort vs working space and road holding, {ref}')
+        eq = studies.equal_space_comparison(rows, sweep, ref)
+        report += ['', f'## Comfort at equal working space vs the passive family ({ref})', '',
+                   _fmt_rows(eq, ['law', 'working_space_rms', 'body_acc_wk_rms',
+                                  'passive_wk_same_space', 'change_pct'],
+                             {'working_space_rms': 1e3})]
     if 'frequency' in studies_:
         freqs = np.geomspace(0.5, 20.0, 18)
         fam = {}
@@ -184,6 +207,20 @@ def run_evaluate(args, log=print):
         if not args.no_plots:
             plots.response_figure(fam, out / 'frequency_response.png',
                                   'rig-style frequency responses, 5 mm road')
+    for item in args.tune:
+        law, param, values = _parse_tune(item)
+        target = next((n for n in names if n.startswith('iso_')), 'iso_C_20')
+        best, vals, obj, met = runner.tune(law, param, values, target, args.objective,
+                                           control_delay=args.delay, overrides=overrides,
+                                           dt=args.dt, **common)
+        tune_rows = [{param: v, args.objective: float(o),
+                      'working_space_rms': float(w), 'tyre_load_rms': float(t)}
+                     for v, o, w, t in zip(vals, obj, met['working_space_rms'],
+                                           met['tyre_load_rms'])]
+        text = _fmt_rows(tune_rows, list(tune_rows[0]), {'working_space_rms': 1e3})
+        report += ['', f'## Tuning {law}.{param} on {target} ({args.objective}); best '
+                   f'{best}', '', text]
+        log(f'tune {law}.{param} on {target}: best {best}\n{text}')
     if 'seeds' in studies_:
         from mr_suspension.evaluation import seeds
         r1 = seeds.seed001_reproduction(None if args.no_plots else out)
@@ -211,10 +248,12 @@ def run_evaluate(args, log=print):
                               for k, v in best.items()],
                              ['index', 'best current [A]', 'value', 'best linear c [N s/m]',
                               'value (linear)'])]
-        bc = studies.bound_comparison(laws, 'bump', driver=args.driver,
-                                      vehicle=args.vehicle, damper=args.damper)
-        report += ['', '## Laws vs best passive and the offline semi-active reference (bump)',
-                   '', _fmt_rows(bc, ['objective', 'law', 'value', 'closeness'])]
+        for road in ('bump', 'iso_C_20'):
+            bc = studies.bound_comparison(laws, road, driver=args.driver,
+                                          vehicle=args.vehicle, damper=args.damper)
+            report += ['', f'## Laws vs best passive and the offline semi-active reference '
+                       f'({road}, 3 s)', '',
+                       _fmt_rows(bc, ['objective', 'law', 'value', 'closeness'])]
     if 'degradation' in studies_:
         rs, rdl = studies.degradation(laws, 'iso_C_20', **common)
         report += ['', '## Degradation with actuator speed (iso_C_20)', '',

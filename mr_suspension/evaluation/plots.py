@@ -52,10 +52,13 @@ def response_figure(families, path, title=''):
     drawn dashed (e.g. the linear closed form next to the simulated curve).
     """
     fig, axes = plt.subplots(2, 2, figsize=(10, 7))
+    solid = [k for k in families if not k.startswith('~')]
+    colours = plt.cm.tab20(np.linspace(0.0, 1.0, max(len(solid), 1), endpoint=False))
     for ax, (key, ylabel) in zip(axes.ravel(), RESPONSES):
-        for label, (freqs, resp) in families.items():
+        for k, (label, (freqs, resp)) in enumerate(families.items()):
             style = '--' if label.startswith('~') else '-'
-            ax.semilogy(freqs, resp[key], style, label=label.lstrip('~'))
+            colour = colours[k % len(colours)] if len(solid) > 10 else None
+            ax.semilogy(freqs, resp[key], style, color=colour, label=label.lstrip('~'))
         ax.set_xlabel('frequency [Hz]')
         ax.set_ylabel(ylabel)
         ax.grid(True, which='both', alpha=0.3)

@@ -66,7 +66,7 @@ def controller_for(law, overrides=None):
     return ctrl
 
 
-def build_config(law, vehicle='seed003_passenger', damper='rd1005_bingham', driver='wonder_box',
+def build_config(law, vehicle='city_car', damper='rd1005_bingham', driver='wonder_box',
                  control_delay=0.0, actuator_scale=1.0, overrides=None, dt=1e-3):
     """Corner configuration of ``law`` on the given vehicle, damper and driver (names/objects)."""
     car = _load('vehicles', cfg.load_vehicle, vehicle)
@@ -80,7 +80,7 @@ def build_config(law, vehicle='seed003_passenger', damper='rd1005_bingham', driv
                         control_delay=control_delay)
 
 
-def run(laws=DEFAULT_LAWS, scenarios=('quick',), vehicle='seed003_passenger',
+def run(laws=DEFAULT_LAWS, scenarios=('quick',), vehicle='city_car',
         damper='rd1005_bingham', driver='wonder_box', control_delay=0.0, actuator_scale=1.0,
         overrides=None, dt=1e-3, keep=False):
     """Simulate every law on every scenario; return a list of row dicts (and results if keep).
@@ -115,7 +115,7 @@ def batch_metrics(configs, road):
     return simulate_batch(configs, [road])
 
 
-def passive_sweep(values, scenario='iso_C_20', vehicle='seed003_passenger',
+def passive_sweep(values, scenario='iso_C_20', vehicle='city_car',
                   damper='rd1005_bingham', dt=1e-3, kind='current'):
     """Metrics of passive settings: constant currents of the MR damper or linear dampers.
 
@@ -139,7 +139,7 @@ def passive_sweep(values, scenario='iso_C_20', vehicle='seed003_passenger',
 
 
 def tune(law, param, values, scenario='iso_C_20', objective='body_acc_wk_rms',
-         vehicle='seed003_passenger', damper='rd1005_bingham', driver='wonder_box',
+         vehicle='city_car', damper='rd1005_bingham', driver='wonder_box',
          control_delay=0.0, dt=1e-3, overrides=None):
     """Grid search of one gain; returns ``(best_value, values, objective_values, metrics)``."""
     values = list(values)

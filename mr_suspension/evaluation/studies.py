@@ -29,7 +29,7 @@ from mr_suspension.evaluation import scenarios as scn
 INDICES = ('body_acc_rms', 'body_acc_wk_rms', 'working_space_rms', 'tyre_load_rms')
 
 
-def best_passive(scenario='iso_C_20', vehicle='seed003_passenger', damper='rd1005_bingham',
+def best_passive(scenario='iso_C_20', vehicle='city_car', damper='rd1005_bingham',
                  currents=None, dampings=None):
     """Best passive setting for each index: ``{index: {'current': (I, J), 'linear': (c, J)}}``."""
     currents = np.linspace(0.0, 2.0, 21) if currents is None else np.asarray(currents)
@@ -45,6 +45,31 @@ def best_passive(scenario='iso_C_20', vehicle='seed003_passenger', damper='rd100
     return out, (currents, mc), (dampings, ml)
 
 
+def equal_space_comparison(rows, sweep, scenario):
+    """Comfort of each law against the passive current family at the same working space.
+
+    ``sweep``: metric arrays of a constant-current sweep on ``scenario``
+    (:func:`~mr_suspension.evaluation.runner.passive_sweep`). The passive Wk RMS at the law's
+    working-space RMS is interpolated along the family; returns rows with the law's Wk RMS,
+    the passive one and the change in % (negative = the law is more comfortable than any
+    passive setting using the same working space). NaN outside the family's range.
+    """
+    ws = np.asarray(sweep['working_space_rms'])
+    wk = np.asarray(sweep['body_acc_wk_rms'])
+    order = np.argsort(ws)
+    out = []
+    for r in rows:
+        if r['scenario'] != scenario:
+            continue
+        x = r['working_space_rms']
+        inside = ws.min() * (1.0 - 1e-6) <= x <= ws.max() * (1.0 + 1e-6)
+        ref = float(np.interp(x, ws[order], wk[order])) if inside else float('nan')
+        out.append({'law': r['law'], 'working_space_rms': x, 'body_acc_wk_rms':
+                    r['body_acc_wk_rms'], 'passive_wk_same_space': ref,
+                    'change_pct': 100.0 * (r['body_acc_wk_rms'] / ref - 1.0)})
+    return out
+
+
 def _short_road(name, dt, duration):
     if name == 'bump':
         return rd.bump(scn.BUMP_HEIGHT, 2.0, 10.0, t0=0.2, duration=duration, dt=dt)
@@ -57,7 +82,7 @@ def _short_road(name, dt, duration):
 
 
 def bound_comparison(laws=runner.DEFAULT_LAWS, road='bump', objectives=('body_acc_rms',
-                     'tyre_load_rms'), vehicle='seed003_passenger', damper='rd1005_bingham',
+                     'tyre_load_rms'), vehicle='city_car', damper='rd1005_bingham',
                      driver='wonder_box', duration=3.0, block=0.02, maxiter=40, dt=1e-3):
     """Laws vs best passive current vs offline semi-active reference (module doc).
 
@@ -106,7 +131,7 @@ def bound_comparison(laws=runner.DEFAULT_LAWS, road='bump', objectives=('body_ac
 
 
 def degradation(laws=runner.DEFAULT_LAWS, scenario='iso_C_20', scales=(0.0, 0.5, 1.0, 2.0, 4.0),
-                delays=(0.0, 0.005, 0.01, 0.02), vehicle='seed003_passenger',
+                delays=(0.0, 0.005, 0.01, 0.02), vehicle='city_car',
                 damper='rd1005_bingham', driver='wonder_box', dt=1e-3):
     """Metrics of each law vs actuator speed (``scales``) and vs sensor+compute delay.
 
@@ -150,7 +175,7 @@ def run_estimator(a_s, a_u, x, dt, f_hp=0.1, f_cr=2.0, f_lp=40.0):
     return vs, v
 
 
-def estimator_delays(freqs=(0.5, 1.0, 2.0, 5.0, 10.0), vehicle='seed003_passenger', dt=1e-3,
+def estimator_delays(freqs=(0.5, 1.0, 2.0, 5.0, 10.0), vehicle='city_car', dt=1e-3,
                      f_hp=0.1, f_cr=2.0, f_lp=40.0):
     """Delay [ms] of the estimates vs the true velocities at each frequency (module doc).
 

@@ -369,7 +369,8 @@ def load_bag(path, opts=None):
     with AnyReader([Path(path)], default_typestore=get_typestore(Stores.LATEST)) as reader:
         conns = [c for c in reader.connections if _topic_quantity(c.topic, opts)]
         if not conns:
-            raise DataError(f'{path}: no recognised topics in {[c.topic for c in reader.connections]}')
+            topics = [c.topic for c in reader.connections]
+            raise DataError(f'{path}: no recognised topics in {topics}')
         for conn, stamp, raw in reader.messages(connections=conns):
             q = _topic_quantity(conn.topic, opts)
             series.setdefault(q, ([], []))
@@ -387,7 +388,7 @@ def load_bag(path, opts=None):
         order = np.argsort(ts, kind='stable')
         ts, vs = ts[order], vs[order]
         if q in ('current_command', 'voltage_command'):
-            idx = np.clip(np.searchsorted(ts, t, side='right') - 1, 0, ts.size - 1)
+            idx = np.clip(np.searchsorted(ts, t + 0.01 * dt, side='right') - 1, 0, ts.size - 1)
             cols[q] = vs[idx]
         else:
             cols[q] = np.interp(t, ts, vs)
@@ -423,6 +424,20 @@ def load_records(paths, opts=None):
     if not recs:
         raise DataError('no records loaded')
     return recs
+
+
+def decimate(rec, q):
+    """Every ``q``-th sample of a record (signals are smooth at the rig rates; no filter)."""
+    if q <= 1:
+        return rec
+    sl = slice(None, None, q)
+
+    def cut(a):
+        return None if a is None else a[sl]
+
+    return replace(rec, time=rec.time[sl], displacement=rec.displacement[sl],
+                   velocity=rec.velocity[sl], force=rec.force[sl], i_in=rec.i_in[sl],
+                   command=cut(rec.command), temperature=cut(rec.temperature), dt=rec.dt * q)
 
 
 def with_force(rec, force):

@@ -45,7 +45,7 @@ GAS_NAMES = ('k_gas1', 'k_gas2')
 
 @njit(cache=True)
 def field_current(u, dt, dead_time, tau_rise, tau_fall):
-    """Current dynamics as in core.driver: exact-ZOH lag then a dead time, from rest at u[0].
+    """Return the field current: exact-ZOH lag then a dead time (core.driver), from rest.
 
     ``y += (1 - exp(-dt/tau)) (u - y)``, ``tau = tau_rise`` if ``u > y`` else ``tau_fall``
     (0 = no lag), then ``i[k] = y[k - round(dead_time/dt)]`` (seed 000, Fig. 9).
@@ -282,7 +282,7 @@ class FitResult:
         return damper_params(self.effects, self.eta, self.theta)
 
     def dynamics(self):
-        """Fitted current dynamics (all data)."""
+        """Return the fitted dead time and rise/fall time constants (all data)."""
         return current_dynamics(self.effects, self.eta)
 
     def effect_params(self, effect):
@@ -378,14 +378,15 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None):
     def polish(plist):
         """Hill-climb each parameter by small steps until no step lowers the error."""
         for name in plist:
-            for _ in range(8):
+            for it in range(6):
                 c = state['best'].eta[name]
+                fine = it >= 3
                 if name == 'dead_time':
                     steps = [c - ds.dt_min, c + ds.dt_min]
                 elif name == 'rho':
-                    steps = [c - 0.01, c + 0.01]
+                    steps = [c - 0.003, c + 0.003] if fine else [c - 0.01, c + 0.01]
                 elif c > 0:
-                    steps = [c * 0.95, c * 1.05]
+                    steps = [c * 0.99, c * 1.01] if fine else [c * 0.95, c * 1.05]
                 else:
                     break
                 best = state['best'].sse
@@ -398,7 +399,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None):
                     if ev(e).sse < best * (1 - 1e-9):
                         moved = True
                         break
-                if not moved:
+                if not moved and (fine or name == 'dead_time'):
                     break
 
     def update_theta():
@@ -421,8 +422,9 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None):
         theta[:5] = CVResult(ds, design(ds, (), base_eta, theta), base_eta).theta[:5]
     ev(dict(eta))
     names = _search_order(effects, new)
+    warm = start_eta is not None and len(new) < len(effects)
     if sweeps is None:
-        sweeps = 2 if (len(names) > 1 or force_dep) else 1
+        sweeps = 2 if (len(names) > 1 or force_dep) and not warm else 1
     if 'tau_rise' in names and 'tau_rise' not in (start_eta or {}):
         # Symmetric start for the asymmetric lag: a common time constant first.
         best = None
@@ -452,7 +454,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None):
             res = search(name, grid)
             refine(name, res)
             update_theta()
-    polish(names + ['v_y'])
+    polish([n for n in names if n in _new_names(new) or n == 'dead_time'] + ['v_y'])
     if force_dep:
         for _ in range(2):
             update_theta()

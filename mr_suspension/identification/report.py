@@ -51,7 +51,6 @@ def build(res, records, validate=(), elapsed=None):
     std = ds.f_std
     base = res['baseline']
     final = res['final']
-    base_n = _nrmse(res['base_exact'].sum() / len(res['base_exact']), std)
     # Per-fold MSE are means over equal-size folds; pool them weighted by sample counts.
     w = base.n_test / base.n_test.sum()
     base_n = _nrmse(float(np.sum(res['base_exact'] * w)), std)
@@ -151,7 +150,7 @@ def _predictions(res, records):
     return out
 
 
-def plots(res, records, out_dir):
+def plots(res, records, out_dir, validate=()):
     """Write the PNG figures; return their file names."""
     import matplotlib
     matplotlib.use('Agg')
@@ -246,6 +245,25 @@ def plots(res, records, out_dir):
         fig.savefig(out_dir / 'current_edges.png', dpi=90)
         plt.close(fig)
         names.append('current_edges.png')
+    if validate:
+        vp = _predictions(res, validate)
+        fig, axs = plt.subplots(len(vp), 1, figsize=(10, 1.9 * len(vp) + 0.6), squeeze=False)
+        for ax, (rr, b_, e_) in zip(axs[:, 0], vp):
+            w = min(rr.n, int(6.0 / rr.dt))
+            err = np.convolve((rr.force - b_) ** 2, np.ones(w) / w, mode='valid')
+            k0 = int(np.argmax(err)) if err.size else 0
+            q = slice(k0, k0 + w)
+            ax.plot(rr.time[q], rr.force[q], 'k', lw=0.8, label='measured')
+            ax.plot(rr.time[q], b_[q], 'C0', lw=0.8, label='baseline')
+            ax.plot(rr.time[q], e_[q], 'C3--', lw=0.8, label='extended')
+            ax.set_ylabel('force [N]')
+            ax.set_title(rr.name, fontsize=8)
+        axs[0, 0].legend(fontsize=7, loc='upper right')
+        axs[-1, 0].set_xlabel('time [s]')
+        fig.tight_layout()
+        fig.savefig(out_dir / 'validation.png', dpi=90)
+        plt.close(fig)
+        names.append('validation.png')
     return names
 
 
@@ -261,8 +279,8 @@ def markdown(report, figures):
         lines.append('None: no candidate effect improves the held-out error materially and '
                      'consistently.')
     else:
-        lines += ['| effect | parameters | held-out NRMSE alone | gain alone | MSE loss if dropped |',
-                  '|---|---|---|---|---|']
+        lines += ['| effect | parameters | held-out NRMSE alone | gain alone | '
+                  'MSE loss if dropped |', '|---|---|---|---|---|']
         for c in report['causes']:
             par = ', '.join(f'{k}={v:.4g}' for k, v in c['parameters'].items()) or '-'
             hn = '-' if c['heldout_nrmse'] is None else f'{c["heldout_nrmse"]:.4f}'
@@ -297,7 +315,7 @@ def write(res, records, out_dir, validate=(), elapsed=None, make_plots=True):
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     report, model = build(res, records, validate, elapsed)
-    figures = plots(res, records, out_dir) if make_plots else []
+    figures = plots(res, records, out_dir, validate) if make_plots else []
     report['figures'] = figures
     (out_dir / 'report.json').write_text(json.dumps(report, indent=2, default=_jsonable) + '\n')
     (out_dir / 'report.md').write_text(markdown(report, figures))

@@ -7,10 +7,11 @@ command, evaluates the damper law at that stroke and rate and publishes ``damper
 and tangent ``dF/dv``, stamped with the motion sample) and the measured ``coil_current``
 (:class:`~mr_suspension.core.stepper.ActuatorStepper`).
 
-Real time: a motion sample is paired with the first command that arrives after it (the one
-the controller computed from the same sensor sample, normally); if none has arrived by the next
-motion sample, the newest command is applied (one sample of command latency). Lock-step pairs the
-``k``-th command with the ``k``-th motion sample.
+Real time: each motion sample is answered at once with the newest valid command, so the force
+is normally back at the plant before its next step; the command is then usually the one computed
+from the previous sensor sample (one sample, 1 ms, of command latency, against about 25 ms of
+driver and fluid response). Lock-step pairs the ``k``-th command with the ``k``-th motion
+sample, which is the simulator's order exactly.
 
 Commands are checked: NaN/inf are rejected (the previous valid command is held), values outside
 ``[current_min, current_max]`` are clamped, both with a throttled log. Before the first command,
@@ -59,13 +60,13 @@ class ActuatorNode(Node):
         self.stepper = ActuatorStepper(self.config)
         self.finished = threading.Event()
         self.pub_force = self.create_publisher(JointState, c.DAMPER_FORCE,
-                                               common.qos(c.DAMPER_FORCE))
+                                               common.qos(c.DAMPER_FORCE, self.lockstep))
         self.pub_coil = self.create_publisher(Float64, c.COIL_CURRENT,
-                                              common.qos(c.COIL_CURRENT))
+                                              common.qos(c.COIL_CURRENT, self.lockstep))
         self.create_subscription(Float64, c.CURRENT_COMMAND, self._on_command,
-                                 common.qos(c.CURRENT_COMMAND))
+                                 common.qos(c.CURRENT_COMMAND, self.lockstep))
         self.create_subscription(JointState, c.TRUTH_STATE, self._on_motion,
-                                 common.qos(c.TRUTH_STATE))
+                                 common.qos(c.TRUTH_STATE, self.lockstep))
         self.msg_force = JointState()
         self.msg_force.header.frame_id = c.FRAME_SUSPENSION
         self.msg_force.name = list(c.JOINTS_DAMPER)
@@ -75,12 +76,12 @@ class ActuatorNode(Node):
         self.have_command = False
         self.commands = deque()
         self.motions = deque()
-        self.pending = None
-        self.fresh = False
-        self.n_unpaired = 0
         self.n_rejected = 0
         self.n_clamped = 0
         self.n_commands = 0
+        self.last_input = time.monotonic()
+        self.n_commands_run = 0
+        self.n_forces = 0
         self.n_motion = 0
 
     def validate(self, value):
@@ -100,7 +101,10 @@ class ActuatorNode(Node):
         return value
 
     def _on_command(self, msg):
+        self.last_input = time.monotonic()
         self.n_commands += 1
+        if self.stats.marked:
+            self.n_commands_run += 1
         i = self.validate(float(msg.data))
         self.command = i
         self.command_time = time.monotonic()
@@ -108,12 +112,6 @@ class ActuatorNode(Node):
         if self.lockstep:
             self.commands.append(i)
             self._run_lockstep()
-        elif self.pending is not None:
-            self._apply(i, self.pending)
-            self.pending = None
-            self.fresh = False
-        else:
-            self.fresh = True
 
     def _on_motion(self, msg):
         if len(msg.position) <= SUSPENSION or len(msg.velocity) <= SUSPENSION:
@@ -121,6 +119,7 @@ class ActuatorNode(Node):
                                     throttle_duration_sec=1.0)
             return
         self.n_motion += 1
+        self.last_input = time.monotonic()
         if not self.stats.marked:
             self.stats.mark()
         motion = (msg.header.stamp, float(msg.position[SUSPENSION]),
@@ -129,17 +128,9 @@ class ActuatorNode(Node):
             self.motions.append(motion)
             self._run_lockstep()
             return
-        # Real time: pair the motion sample with the first command received after the previous
-        # sample was applied; if it has not come by the next motion sample, apply the newest.
-        if self.pending is not None:
-            self.n_unpaired += 1
-            self._apply(self._current_now(), self.pending)
-            self.pending = None
-        if self.fresh:
-            self.fresh = False
-            self._apply(self.command, motion)
-        else:
-            self.pending = motion
+        # Real time: answer at once with the newest command, so the force is back at the plant
+        # before its next step (the command is then normally one sample old).
+        self._apply(self._current_now(), motion)
 
     def _current_now(self):
         recent = self.have_command and \
@@ -163,13 +154,18 @@ class ActuatorNode(Node):
         m.velocity = [v, 0.0]
         m.effort = [force, tangent]
         self.pub_force.publish(m)
+        self.n_forces += 1
         self.msg_coil.data = coil
         self.pub_coil.publish(self.msg_coil)
 
+    def drain(self, executor):
+        """On shutdown, handle the messages still queued (clean statistics)."""
+        common.drain(executor, self)
+
     def close(self):
         """Write the statistics file."""
-        self.stats.data.update(commands=self.n_commands, motion_samples=self.n_motion,
-                               unpaired=self.n_unpaired,
+        self.stats.data.update(commands=self.n_commands, commands_after_start=self.n_commands_run,
+                               forces_published=self.n_forces, motion_samples=self.n_motion,
                                rejected=self.n_rejected, clamped=self.n_clamped)
         self.stats.write()
 

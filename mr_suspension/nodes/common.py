@@ -36,13 +36,26 @@ def ensure_environment():
         os.environ['AMENT_PREFIX_PATH'] = os.pathsep.join([prefix] + parts)
 
 
-def qos(topic):
-    """QoS profile of a contract topic (reliable, keep-last ``depth``, volatile)."""
+def qos(topic, lockstep=False):
+    """Return the QoS profile of a contract topic: reliable, keep-last ``depth``.
+
+    Volatile in real time (matches any reliable publisher, e.g. a sensor driver); transient
+    local in lock-step, so that a message sent before discovery has matched a publisher with a
+    subscriber is still delivered (a lost message would stall the lock-step loop).
+    """
     t = contract.TOPICS[topic]
     rel = ReliabilityPolicy.RELIABLE if t.reliability == 'reliable' \
         else ReliabilityPolicy.BEST_EFFORT
+    dur = DurabilityPolicy.TRANSIENT_LOCAL if lockstep else DurabilityPolicy.VOLATILE
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=t.depth, reliability=rel,
-                      durability=DurabilityPolicy.VOLATILE)
+                      durability=dur)
+
+
+def drain(executor, node, idle=0.1, limit=3.0):
+    """Spin until ``node.last_input`` (monotonic time) is ``idle`` seconds old (max ``limit``)."""
+    end = time.monotonic() + limit
+    spin_until(executor, lambda: time.monotonic() - node.last_input > idle
+               or time.monotonic() > end, limit + 1.0, step=0.02)
 
 
 def node_defaults_path(node):
@@ -51,7 +64,7 @@ def node_defaults_path(node):
 
 
 def node_defaults(node):
-    """Default parameters of ``node`` from ``config/nodes/<node>.yaml``."""
+    """Return the default parameters of ``node`` from ``config/nodes/<node>.yaml``."""
     with open(node_defaults_path(node), encoding='utf-8') as fh:
         data = yaml.safe_load(fh) or {}
     for key, value in data.items():
@@ -92,7 +105,7 @@ def declare_corner(node, defaults):
 
 def corner_config(vehicle='city_car', damper='rd1005_bingham', driver='wonder_box',
                   controller='skyhook_onoff', rate=1000.0):
-    """The corner the nodes and the offline reference build from the parameter-set names.
+    """Build the corner the nodes and the offline reference use from parameter-set names.
 
     The controller gets the plant knowledge of the corner (``laws.configure``: vehicle, damper
     model, driver range), as the evaluation does.
@@ -116,7 +129,7 @@ def set_stamp(header, ns):
 
 
 def finite(*values):
-    """True when every value is a finite float."""
+    """Return True when every value is a finite float."""
     return all(math.isfinite(v) for v in values)
 
 

@@ -17,7 +17,7 @@ class Topic:
     """One contract topic."""
 
     name: str
-    type: str
+    type: str  # noqa: A003 - the contract field name
     rate: float
     reliability: str
     depth: int

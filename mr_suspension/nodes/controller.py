@@ -24,6 +24,7 @@ import threading
 import time
 
 from rclpy.node import Node
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64
 
@@ -58,12 +59,17 @@ class ControllerNode(Node):
         self.stepper = ControllerStepper(self.config)
         self.finished = threading.Event()
         self.pub_cmd = self.create_publisher(Float64, c.CURRENT_COMMAND,
-                                             common.qos(c.CURRENT_COMMAND))
-        self.create_subscription(Imu, c.IMU_BODY, self._on_imu_s, common.qos(c.IMU_BODY))
-        self.create_subscription(Imu, c.IMU_WHEEL, self._on_imu_u, common.qos(c.IMU_WHEEL))
-        self.create_subscription(JointState, c.STROKE, self._on_stroke, common.qos(c.STROKE))
+                                             common.qos(c.CURRENT_COMMAND, self.lockstep))
+        # Sensor QoS can be overridden by parameters (qos_overrides./<ns>/imu/body.subscription.
+        # reliability etc.) to match a driver's publisher.
+        over = QoSOverridingOptions.with_default_policies()
+        for topic, cls, cb in ((c.IMU_BODY, Imu, self._on_imu_s),
+                               (c.IMU_WHEEL, Imu, self._on_imu_u),
+                               (c.STROKE, JointState, self._on_stroke)):
+            self.create_subscription(cls, topic, cb, common.qos(topic, self.lockstep),
+                                     qos_overriding_options=over)
         self.create_subscription(Float64, c.COIL_CURRENT, self._on_coil,
-                                 common.qos(c.COIL_CURRENT))
+                                 common.qos(c.COIL_CURRENT, self.lockstep))
         self.msg = Float64()
         # Newest value and monotonic arrival time per sensor.
         self.latest = {c.IMU_BODY: None, c.IMU_WHEEL: None, c.STROKE: None}
@@ -75,6 +81,8 @@ class ControllerNode(Node):
         self.fallback = False
         self.n_fallback = 0
         self.n_cmd = 0
+        self.last_input = time.monotonic()
+        self.n_cmd_run = 0
         self.n_sensor = dict.fromkeys(self.latest, 0)
         self.timer = None
         if not self.lockstep:
@@ -85,6 +93,7 @@ class ControllerNode(Node):
     def _store(self, topic, stamp, value):
         if not self.stats.marked:
             self.stats.mark()
+        self.last_input = time.monotonic()
         self.n_sensor[topic] += 1
         self.latest[topic] = value
         self.arrival[topic] = time.monotonic()
@@ -103,6 +112,7 @@ class ControllerNode(Node):
         self._store(c.STROKE, msg.header.stamp, x)
 
     def _on_coil(self, msg):
+        self.last_input = time.monotonic()
         self.coil_latest = float(msg.data)
         if self.lockstep:
             self.coil.append(float(msg.data))
@@ -128,6 +138,8 @@ class ControllerNode(Node):
         self.msg.data = float(i_cmd)
         self.pub_cmd.publish(self.msg)
         self.n_cmd += 1
+        if self.stats.marked:
+            self.n_cmd_run += 1
 
     def _stale(self):
         now = time.monotonic()
@@ -166,10 +178,15 @@ class ControllerNode(Node):
                           None)
             self.k += 1
 
+    def drain(self, executor):
+        """On shutdown, handle the messages still queued (clean statistics)."""
+        common.drain(executor, self)
+
     def close(self):
         """Write the statistics file."""
-        self.stats.data.update(commands=self.n_cmd, fallback_steps=self.n_fallback,
-                               received={k: v for k, v in self.n_sensor.items()})
+        self.stats.data.update(commands=self.n_cmd, commands_after_start=self.n_cmd_run,
+                               fallback_steps=self.n_fallback,
+                               received=dict(self.n_sensor))
         self.stats.write()
 
 

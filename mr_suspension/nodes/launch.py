@@ -27,6 +27,7 @@ from mr_suspension.nodes import contract as c
 from mr_suspension.nodes.common import corner_config
 
 NODE_ORDER = ('recorder', 'controller', 'actuator', 'plant')
+STOP_ORDER = ('plant', 'controller', 'actuator', 'recorder')
 DEFAULT_ROAD = '{type: bump, height: 0.05}'
 
 
@@ -52,7 +53,7 @@ def read_bag(path):
 
 
 def bag_summary(path, namespace='', gravity=9.81):
-    """Main figures of a node-set run read back from its bag.
+    """Return the main figures of a node-set run, read back from its bag.
 
     Body acceleration from ``imu/body`` (gravity removed), working space from ``stroke``, dynamic
     tyre load from ``truth/tyre_force`` minus its first (static) sample. Sample 0 (the initial
@@ -131,7 +132,8 @@ def run_node_set(out_dir, duration=3.0, road=DEFAULT_ROAD, vehicle='city_car',
                       use_sim_time=False, expect_subscribers=2 if record else 1),
         'controller': dict(common),
         'actuator': dict(common),
-        'recorder': {'output': str(bag), 'storage': storage, 'use_sim_time': bool(lockstep)},
+        'recorder': {'output': str(bag), 'storage': storage, 'use_sim_time': bool(lockstep),
+                     'lockstep': bool(lockstep)},
     }
     for name in nodes:
         params[name]['stats_file'] = str(out / f'stats_{name}.json')
@@ -159,7 +161,8 @@ def run_node_set(out_dir, duration=3.0, road=DEFAULT_ROAD, vehicle='city_car',
             raise TimeoutError(f'node set did not finish within {limit:.0f} s; logs in {out}') \
                 from None
     finally:
-        codes = {name: _stop(p, 20.0) for name, p in procs.items()}
+        # Stop the loop first, the recorder last so that it drains everything published.
+        codes = {name: _stop(procs[name], 20.0) for name in STOP_ORDER if name in procs}
     wall = time.monotonic() - t0
     stats = {}
     for name in nodes:

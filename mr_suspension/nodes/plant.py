@@ -55,6 +55,9 @@ class PlantNode(Node):
                                           'road is used up')
         self.max_catchup = common.declare(self, d, 'max_catchup', 'Real time: most steps per '
                                           'timer tick when behind the wall clock', 1, 100)
+        self.force_wait = common.declare(self, d, 'force_wait', 'Real time: longest wait for '
+                                         'the damper force of a due step before stepping with '
+                                         'the previous force [s]', 0.0, 0.1)
         self.gravity = self.config.car.g
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
                                                  'as JSON here on exit ("" = off)'))
@@ -66,18 +69,19 @@ class PlantNode(Node):
         self.dt_ns = int(round(self.config.dt * 1e9))
         self.finished = threading.Event()
 
-        self.pub_imu_s = self.create_publisher(Imu, c.IMU_BODY, common.qos(c.IMU_BODY))
-        self.pub_imu_u = self.create_publisher(Imu, c.IMU_WHEEL, common.qos(c.IMU_WHEEL))
-        self.pub_stroke = self.create_publisher(JointState, c.STROKE, common.qos(c.STROKE))
+        ls = self.lockstep
+        self.pub_imu_s = self.create_publisher(Imu, c.IMU_BODY, common.qos(c.IMU_BODY, ls))
+        self.pub_imu_u = self.create_publisher(Imu, c.IMU_WHEEL, common.qos(c.IMU_WHEEL, ls))
+        self.pub_stroke = self.create_publisher(JointState, c.STROKE, common.qos(c.STROKE, ls))
         self.pub_truth = self.create_publisher(JointState, c.TRUTH_STATE,
-                                               common.qos(c.TRUTH_STATE))
+                                               common.qos(c.TRUTH_STATE, self.lockstep))
         self.pub_tyre = self.create_publisher(Float64, c.TRUTH_TYRE_FORCE,
-                                              common.qos(c.TRUTH_TYRE_FORCE))
+                                              common.qos(c.TRUTH_TYRE_FORCE, self.lockstep))
         self.pub_clock = None
         if self.lockstep and self.publish_clock:
-            self.pub_clock = self.create_publisher(Clock, c.CLOCK, common.qos(c.CLOCK))
+            self.pub_clock = self.create_publisher(Clock, c.CLOCK, common.qos(c.CLOCK, ls))
         self.sub_force = self.create_subscription(JointState, c.DAMPER_FORCE, self._on_force,
-                                                  common.qos(c.DAMPER_FORCE))
+                                                  common.qos(c.DAMPER_FORCE, self.lockstep))
         self._init_messages()
         # Newest damper force: (sample index, force, tangent, stroke rate it was evaluated at).
         self.force = None
@@ -94,6 +98,7 @@ class PlantNode(Node):
         self.stats.data.update(mode='lockstep' if self.lockstep else 'realtime',
                                rate=1.0 / self.config.dt, steps_planned=self.road.n_steps)
         self.ready_since = None
+        self.waiting_since = None
         self.start_timer = self.create_timer(0.02, self._try_start)
         self.step_timer = None
         self.get_logger().info(
@@ -165,11 +170,18 @@ class PlantNode(Node):
         self.msg_truth.velocity = [float(q[2]), float(q[3]), zr_dot, v]
         self.msg_tyre.data = p.f_t
         self.pub_wall[p.k] = time.monotonic()
-        # Critical path first: the controller's sensors, then the damper motion.
-        self.pub_imu_s.publish(self.msg_imu_s)
-        self.pub_imu_u.publish(self.msg_imu_u)
-        self.pub_stroke.publish(self.msg_stroke)
-        self.pub_truth.publish(self.msg_truth)
+        # Lock-step: the controller's sensors lead the critical path (controller, then actuator).
+        # Real time: the damper motion first, the force comes back at once; then the sensors.
+        if self.lockstep:
+            self.pub_imu_s.publish(self.msg_imu_s)
+            self.pub_imu_u.publish(self.msg_imu_u)
+            self.pub_stroke.publish(self.msg_stroke)
+            self.pub_truth.publish(self.msg_truth)
+        else:
+            self.pub_truth.publish(self.msg_truth)
+            self.pub_imu_s.publish(self.msg_imu_s)
+            self.pub_imu_u.publish(self.msg_imu_u)
+            self.pub_stroke.publish(self.msg_stroke)
         self.pub_tyre.publish(self.msg_tyre)
         if self.pub_clock is not None:
             self.msg_clock.clock.sec = int(ns // 1_000_000_000)
@@ -193,8 +205,12 @@ class PlantNode(Node):
         if self.force is not None and k < self.force[0]:
             return
         self.force = (k, float(msg.effort[0]), float(msg.effort[1]), float(msg.velocity[0]))
-        if self.lockstep and k == self.plant.k and not self.plant.done:
-            self._advance()
+        if k == self.plant.k and not self.plant.done:
+            if self.lockstep:
+                self._advance()
+            elif self.waiting_since is not None:
+                self.waiting_since = None
+                self._catch_up(time.monotonic(), allow_late=False)
 
     def _advance(self):
         t_in = time.monotonic()
@@ -219,9 +235,27 @@ class PlantNode(Node):
         self.last_tick = now
         if self.plant.done:
             return
-        target = int((now - self.wall0) / self.config.dt)
+        late_ok = self.waiting_since is not None and \
+            now - self.waiting_since >= self.force_wait
+        self._catch_up(now, late_ok)
+
+    def _catch_up(self, now, allow_late):
+        """Take the steps that are due by the wall clock.
+
+        A step is taken at once when the damper force of the present sample is in; otherwise
+        the plant waits for it (the force callback takes the step) for at most ``force_wait``,
+        then steps with the newest force moved along its tangent (a late force, one per tick).
+        """
+        due = int((now - self.wall0) / self.config.dt)
         n = 0
-        while self.plant.k < target and n < self.max_catchup and not self.plant.done:
+        while self.plant.k < due and n < self.max_catchup and not self.plant.done:
+            if self.force is None or self.force[0] != self.plant.k:
+                if not allow_late:
+                    if self.waiting_since is None:
+                        self.waiting_since = now
+                    return
+                allow_late = False
+            self.waiting_since = None
             self._advance()
             n += 1
 
@@ -240,7 +274,7 @@ class PlantNode(Node):
             step_cost_p50_s=cost[0], step_cost_p99_s=cost[1])
         self.get_logger().info(
             f'plant: done, {self.plant.k} steps in {wall:.2f} s ({self.plant.k / wall:.0f} '
-            f'steps/s), {self.late_forces} steps used the previous sample\'s force')
+            f"steps/s), {self.late_forces} steps used the previous sample's force")
         if self.exit_at_end:
             self.finished.set()
 

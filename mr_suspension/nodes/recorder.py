@@ -25,7 +25,7 @@ STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
 
 def typestore():
-    """The rosbags type store matching this ROS distribution (Kilted)."""
+    """Return the rosbags type store matching this ROS distribution (Kilted)."""
     return get_typestore(Stores.ROS2_KILTED)
 
 
@@ -47,6 +47,8 @@ class RecorderNode(Node):
         storage = common.declare(self, d, 'storage', 'Storage plugin: mcap or sqlite3')
         topics = common.declare(self, d, 'topics', 'Comma-separated contract topics to record '
                                 '("" = all)')
+        self.lockstep = common.declare(self, d, 'lockstep', 'Subscribe transient-local, as the '
+                                       'lock-step nodes publish (no message lost to discovery)')
         self.drain_idle = common.declare(self, d, 'drain_idle', 'On shutdown, stop once no '
                                          'message arrived for this long [s]', 0.01, 10.0)
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
@@ -78,7 +80,7 @@ class RecorderNode(Node):
             conn = self.writer.add_connection(full, t.type, typestore=store)
             self.counts[full] = 0
             self.create_subscription(message_class(t.type), name, self._writer_cb(conn, full),
-                                     common.qos(name), raw=True)
+                                     common.qos(name, self.lockstep), raw=True)
         self.get_logger().info(f'recorder: writing {len(names)} topics to {self.path} '
                                f'({storage})')
 

@@ -1,0 +1,120 @@
+"""Benchmark of the ROS 2 node set as separate processes (plant, controller, actuator, recorder).
+
+Real time at the default 1 kHz for ``--duration`` seconds (default 30) on an ISO 8608 class C
+road: achieved step rate, plant timer jitter (|period - 1 ms|) p50/p99, sensor-to-force loop
+latency p50/p99 (plant publishes sample k -> plant receives the damper force for sample k, via
+the actuator), late forces, messages lost on every link, CPU per node (fraction of one core
+over the run). Then lock-step (simulated time) for ``--lockstep-duration`` seconds: steps per
+second across processes, with and without the recorder.
+
+Usage: ``python benchmarks/bench_nodes.py [--duration 30] [--lockstep-duration 5]``.
+Targets: 1 kHz with zero loss, loop latency p99 < 2 ms, lock-step >= 3x real time.
+"""
+
+import argparse
+from pathlib import Path
+import shutil
+import tempfile
+
+from mr_suspension.nodes import contract as c
+from mr_suspension.nodes.launch import run_node_set
+
+ROAD = '{type: iso8608, road_class: C, speed: 20.0, seed: 1}'
+
+
+def losses(res):
+    """Messages lost per link: (link, sent, received)."""
+    st = res['stats']
+    plant, ctl, act = st['plant'], st['controller'], st['actuator']
+    rec = st.get('recorder', {}).get('counts', {})
+    ns = '/front_left/'
+    n = plant['published']
+    rows = []
+    for topic in (c.IMU_BODY, c.IMU_WHEEL, c.STROKE):
+        rows.append((f'plant -> controller {topic}', n, ctl['received'][topic]))
+    rows.append((f'plant -> actuator {c.TRUTH_STATE}', n, act['motion_samples']))
+    rows.append((f'actuator -> plant {c.DAMPER_FORCE}', act['forces_published'],
+                 plant['forces_received']))
+    rows.append((f'controller -> actuator {c.CURRENT_COMMAND} (during the run)',
+                 ctl['commands_after_start'],
+                 min(act['commands_after_start'], ctl['commands_after_start'])))
+    for topic in c.published_by('plant'):
+        name = topic if topic.startswith('/') else ns + topic
+        if name in rec:
+            rows.append((f'plant -> recorder {topic}', n, rec[name]))
+    for topic in (c.DAMPER_FORCE, c.COIL_CURRENT):
+        if ns + topic in rec:
+            rows.append((f'actuator -> recorder {topic}', act['forces_published'],
+                         rec[ns + topic]))
+    return rows
+
+
+def report_realtime(res, duration):
+    """Print the real-time figures."""
+    st = res['stats']
+    p = st['plant']
+    print(f'== real time, separate processes, 1 kHz, {duration:g} s (ISO 8608 C road)')
+    print(f'achieved rate:            {p["steps_per_s"]:.1f} steps/s '
+          f'({p["steps"]} steps in {p["run_wall_s"]:.2f} s)')
+    print(f'timer jitter p50/p99:     {1e3 * p["jitter_p50_s"]:.3f} / '
+          f'{1e3 * p["jitter_p99_s"]:.3f} ms')
+    print(f'loop latency p50/p99:     {1e3 * p["latency_p50_s"]:.3f} / '
+          f'{1e3 * p["latency_p99_s"]:.3f} ms  (sample k published -> force k received)')
+    print(f'plant step+publish p50/p99: {1e3 * p["step_cost_p50_s"]:.3f} / '
+          f'{1e3 * p["step_cost_p99_s"]:.3f} ms')
+    print(f'late forces:              {p["late_forces"]} of {p["steps"]} steps '
+          f'(stepped with the previous force after {1e3 * 0.0008:.1f} ms)')
+    total_lost = 0
+    for link, sent, got in losses(res):
+        lost = max(0, sent - got)
+        total_lost += lost
+        print(f'  lost {lost:6d} of {sent:6d}  {link}')
+    print(f'messages lost:            {total_lost}')
+    for name in ('plant', 'controller', 'actuator', 'recorder'):
+        if name in st:
+            print(f'CPU {name:10s}            {100 * st[name]["cpu_fraction"]:.1f} % of a core '
+                  f'({st[name]["cpu_s"]:.2f} s over {st[name]["wall_s"]:.2f} s)')
+    if 'agreement' in res:
+        print('vs offline simulator [%]: ' + ', '.join(
+            f'{k} {v:+.3f}' for k, v in res['agreement'].items()))
+
+
+def report_lockstep(res, duration, label):
+    """Print the lock-step figures."""
+    p = res['stats']['plant']
+    print(f'== lock-step, separate processes, {label}: {p["steps"]} steps ({duration:g} s '
+          f'simulated) in {p["run_wall_s"]:.2f} s: {p["steps_per_s"]:.0f} steps/s = '
+          f'{p["steps_per_s"] * 1e-3:.2f}x real time; loop latency p50/p99 '
+          f'{1e3 * p["latency_p50_s"]:.3f} / {1e3 * p["latency_p99_s"]:.3f} ms')
+    if 'agreement' in res:
+        print('   vs offline simulator [%]: ' + ', '.join(
+            f'{k} {v:+.2e}' for k, v in res['agreement'].items()))
+
+
+def main(argv=None):
+    """Run the benchmark and print the figures."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--duration', type=float, default=30.0, help='real-time run [s]')
+    ap.add_argument('--lockstep-duration', type=float, default=5.0, help='lock-step run [s]')
+    ap.add_argument('--controller', default='skyhook_onoff')
+    ap.add_argument('--out', default='', help='keep bags and logs here (default: temporary)')
+    args = ap.parse_args(argv)
+    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix='bench_nodes_'))
+    try:
+        res = run_node_set(out / 'realtime', duration=args.duration, road=ROAD,
+                           controller=args.controller, lockstep=False,
+                           timeout=120.0 + 3.0 * args.duration)
+        report_realtime(res, args.duration)
+        for label, record in (('with recorder', True), ('without recorder', False)):
+            res = run_node_set(out / f'lockstep_{record}', duration=args.lockstep_duration,
+                               road=ROAD, controller=args.controller, lockstep=True,
+                               record=record, timeout=120.0 + 20.0 * args.lockstep_duration)
+            report_lockstep(res, args.lockstep_duration, label)
+    finally:
+        if not args.out:
+            shutil.rmtree(out, ignore_errors=True)
+    return 0
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,81 @@
+"""CLI: diagnose writes report/model/figures, predict reproduces the fit, doe, help, errors."""
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from mr_suspension.identification import cli, model_io, synthetic
+from mr_suspension.identification.data import load_records, LoadOptions, parse_mapping
+
+
+def _write_csv(path, rec, mm_kn=False):
+    x = rec.displacement * (1e3 if mm_kn else 1.0)
+    f = rec.force * (1e-3 if mm_kn else 1.0)
+    v = rec.velocity * (1e3 if mm_kn else 1.0)
+    np.savetxt(path, np.column_stack([rec.time, x, v, f, rec.i_in]), delimiter=',',
+               header='t,stroke,rate,load,current_command', comments='', fmt='%.10g')
+
+
+def test_diagnose_predict_round_trip(tmp_path, capsys):
+    rec, truth = synthetic.make_record(('gas_spring',), seed=21, duration=16.0)
+    csv = tmp_path / 'rig.csv'
+    _write_csv(csv, rec, mm_kn=True)
+    out = tmp_path / 'out'
+    fmt = ['--columns', 'time=t,displacement=stroke,velocity=rate,force=load', '--units',
+           'displacement=mm,velocity=mm/s,force=kN']
+    assert cli.main(['diagnose', str(csv), '--out', str(out), '--quiet'] + fmt) == 0
+    rep = json.loads((out / 'report.json').read_text())
+    for key in ('baseline', 'verdict', 'causes', 'ambiguous', 'untestable', 'extended', 'gain'):
+        assert key in rep
+    assert set(rep['baseline']) >= {'model', 'parameters', 'heldout_nrmse'}
+    assert rep['verdict'] == 'named' and rep['causes'][0]['effect'] == 'gas_spring'
+    assert set(rep['causes'][0]) >= {'effect', 'parameters', 'heldout_nrmse', 'gain', 'evidence'}
+    assert rep['gain'] == pytest.approx(
+        1 - rep['extended']['heldout_nrmse'] / rep['baseline']['heldout_nrmse'])
+    for png in ('force_time.png', 'loops.png', 'residuals.png', 'current_edges.png'):
+        assert (out / png).stat().st_size > 1000
+    assert 'gas_spring' in (out / 'report.md').read_text()
+    model = model_io.load_model(out / 'model.json')
+    assert model['damper']['law'] == 'extended' and model['damper']['k_gas1'] > 0
+    params, dyn = model_io.load_fitted_model(out / 'model.json')
+    assert set(dyn) == {'dead_time', 'tau_rise', 'tau_fall'}
+    pred = tmp_path / 'pred.csv'
+    assert cli.main(['predict', '--model', str(out / 'model.json'), str(csv), '--out',
+                     str(pred)] + fmt) == 0
+    got = np.loadtxt(pred, delimiter=',', skiprows=1)
+    opts = LoadOptions(columns=parse_mapping(fmt[1], 'c'), units=parse_mapping(fmt[3], 'u'))
+    (loaded,) = load_records([csv], opts)
+    np.testing.assert_allclose(got[:, 1], model_io.predict(model, loaded), rtol=1e-7,
+                               atol=1e-6)
+    resid = got[:, 1] - rec.force
+    assert np.std(resid) < 1.2 * truth['noise_rms']
+    # A record without a force column can still be predicted.
+    nof = tmp_path / 'noforce.csv'
+    np.savetxt(nof, np.column_stack([rec.time, rec.displacement, rec.i_in]), delimiter=',',
+               header='time,displacement,current_command', comments='')
+    assert cli.main(['predict', '--model', str(out / 'model.json'), str(nof), '--out',
+                     str(tmp_path / 'p2.csv')]) == 0
+    p2 = np.loadtxt(tmp_path / 'p2.csv', delimiter=',', skiprows=1)
+    assert p2.shape == (rec.n, 2)
+
+
+def test_doe_help_and_errors(tmp_path, capsys):
+    prog = tmp_path / 'prog.csv'
+    assert cli.main(['doe', '--out', str(prog), '--duration', '30']) == 0
+    arr = np.loadtxt(prog, delimiter=',', skiprows=1)
+    assert arr.shape == (30000, 4)
+    assert np.ptp(arr[:, 3]) > 0.9 and np.max(np.abs(arr[:, 1])) < 0.05
+    ap = argparse.ArgumentParser(prog='mr-suspension')
+    cli.register(ap.add_subparsers(dest='command'))
+    for sub in ('diagnose', 'predict', 'doe'):
+        with pytest.raises(SystemExit) as exc:
+            ap.parse_args([sub, '--help'])
+        assert exc.value.code == 0
+    assert 'held-out' in capsys.readouterr().out
+    bad = tmp_path / 'bad.csv'
+    bad.write_text('time,displacement,force\n0,0,1\n')
+    assert cli.main(['diagnose', str(bad), '--out', str(tmp_path / 'o')]) == 2
+    assert 'current_command' in capsys.readouterr().err
+    assert cli.main(['predict', '--model', str(bad), str(bad), '--out', 'x.csv']) == 2

@@ -1,0 +1,158 @@
+"""Loaders, column/unit mapping and bad-input handling of the identification package."""
+
+from pathlib import Path
+import warnings
+
+import numpy as np
+import pytest
+
+from mr_suspension.identification import data as dataio
+
+SHARED = Path(__file__).resolve().parents[1].parent / 'shared'
+VRTHS = SHARED / 'data' / 'vrths'
+
+
+def _table(n=2000, dt=1e-3):
+    t = np.arange(n) * dt
+    x = 0.01 * np.sin(2 * np.pi * 2 * t)
+    v = np.gradient(x, dt)
+    f = 2000 * v + 300 * np.tanh(v / 0.01)
+    i = np.where(t % 0.5 < 0.25, 0.8, 0.2)
+    return t, x, v, f, i
+
+
+def _csv(path, header, cols):
+    np.savetxt(path, np.column_stack(cols), delimiter=',', header=','.join(header),
+               comments='')
+    return path
+
+
+def test_csv_with_mapping_and_units(tmp_path):
+    t, x, v, f, i = _table()
+    p = _csv(tmp_path / 'r.csv', ['t_ms', 'stroke_mm', 'F_kN', 'I'],
+             [t * 1e3, x * 1e3, f * 1e-3, i])
+    opts = dataio.LoadOptions(
+        columns=dataio.parse_mapping(['time=t_ms,displacement=stroke_mm', 'force=F_kN',
+                                      'current_command=I'], 'c'),
+        units=dataio.parse_mapping(['time=ms,displacement=mm,force=kN'], 'u'))
+    (rec,) = dataio.load_records([p], opts)
+    assert rec.dt == pytest.approx(1e-3)
+    np.testing.assert_allclose(rec.force, f, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(rec.displacement, x, atol=1e-9)
+    assert rec.velocity_source.startswith('derived')
+    inner = slice(50, -50)
+    assert np.max(np.abs(rec.velocity[inner] - v[inner])) < 0.01 * np.max(np.abs(v))
+    assert rec.input_kind == 'current_command'
+
+
+def test_voltage_command_and_measured_current(tmp_path):
+    t, x, v, f, i = _table()
+    volt = 0.5 + i / 0.5
+    p = _csv(tmp_path / 'v.csv', ['time', 'displacement', 'force', 'voltage_command'],
+             [t, x, f, volt])
+    (rec,) = dataio.load_records([p])
+    assert rec.input_kind == 'voltage_command'
+    assert np.all(np.diff(np.unique(np.round(rec.i_in, 6))) > 0)
+    p = _csv(tmp_path / 'c.csv', ['time', 'displacement', 'force', 'current_command',
+                                  'current'], [t, x, f, i, 0.9 * i])
+    (rec,) = dataio.load_records([p])
+    assert rec.input_kind == 'current'
+    np.testing.assert_allclose(rec.i_in, 0.9 * i)
+
+
+@pytest.mark.parametrize('case, match', [
+    ('missing', 'missing column'),
+    ('no_current', 'current_command'),
+    ('nan_many', 'NaN'),
+    ('backwards', 'strictly increasing'),
+    ('short', 'too short'),
+    ('mm_as_m', 'units displacement=mm'),
+    ('velocity_units', 'check --units'),
+    ('unknown_unit', 'unit'),
+])
+def test_bad_input_gives_clear_errors(tmp_path, case, match):
+    t, x, v, f, i = _table()
+    header = ['time', 'displacement', 'velocity', 'force', 'current_command']
+    cols = [t, x, v, f, i]
+    units = {}
+    if case == 'missing':
+        header[3] = 'Force'
+    elif case == 'no_current':
+        header[4] = 'amps'
+    elif case == 'nan_many':
+        cols[3] = f.copy()
+        cols[3][::20] = np.nan
+    elif case == 'backwards':
+        cols[0] = t.copy()
+        cols[0][500] = cols[0][498]
+    elif case == 'short':
+        cols = [c[:150] for c in cols]
+    elif case == 'mm_as_m':
+        cols[1] = x * 1e3
+        cols[2] = v * 1e3
+    elif case == 'velocity_units':
+        cols[2] = v * 1e3
+    elif case == 'unknown_unit':
+        units = {'force': 'lbf'}
+    p = _csv(tmp_path / 'bad.csv', header, cols)
+    with pytest.raises(dataio.DataError, match=match):
+        dataio.load_records([p], dataio.LoadOptions(units=units))
+
+
+def test_warnings_for_patchable_problems(tmp_path):
+    t, x, v, f, i = _table()
+    f2 = f.copy()
+    f2[100] = np.nan
+    p = _csv(tmp_path / 'nan.csv', ['time', 'displacement', 'force', 'current_command'],
+             [t, x, f2, i])
+    with pytest.warns(UserWarning, match='interpolated'):
+        (rec,) = dataio.load_records([p])
+    assert np.all(np.isfinite(rec.force))
+    p = _csv(tmp_path / 'kn.csv', ['time', 'displacement', 'force', 'current_command'],
+             [t, x, f * 1e-3, i])
+    with pytest.warns(UserWarning, match='kN'):
+        dataio.load_records([p])
+    with pytest.raises(dataio.DataError, match='header'):
+        np.savetxt(tmp_path / 'nohead.csv', np.column_stack([t, x, f, i]), delimiter=',')
+        dataio.load_records([tmp_path / 'nohead.csv'])
+    with pytest.raises(dataio.DataError, match='no such file'):
+        dataio.load_records([tmp_path / 'absent.csv'])
+
+
+def test_vrths_files_load_through_the_same_path():
+    (rec,) = dataio.load_records([VRTHS / 'preprocessed_sine' / '10mm1Hz0x25A.txt'])
+    assert rec.dt == pytest.approx(1e-3)
+    assert np.all(rec.i_in == 0.25)
+    assert 0.009 < np.max(np.abs(rec.displacement)) < 0.011
+    assert rec.meta['frequency_hz'] == 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        recs = dataio.load_records([VRTHS / 'validation' / 'validacion.mat'])
+    assert [r.i_in[0] for r in recs] == [0.2, 0.4, 0.6, 0.8, 1.0]
+    assert all(r.n == 64648 and r.velocity_source.startswith('derived') for r in recs)
+
+
+def test_rosbag2_round_trip(tmp_path):
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import get_typestore, Stores
+
+    ts = get_typestore(Stores.LATEST)
+    Float64 = ts.types['std_msgs/msg/Float64']
+    t, x, v, f, i = _table(1500)
+    bag = tmp_path / 'bag'
+    with Writer(bag, version=9) as w:
+        conns = {name: w.add_connection(name, Float64.__msgtype__, typestore=ts)
+                 for name in ('/damper/stroke', '/damper/force', '/damper/current_command',
+                              '/damper/current')}
+        for k in range(t.size):
+            stamp = int(1e9 + t[k] * 1e9)
+            for name, val in (('/damper/stroke', x[k]), ('/damper/force', f[k]),
+                              ('/damper/current_command', i[k]),
+                              ('/damper/current', 0.95 * i[k])):
+                w.write(conns[name], stamp, ts.serialize_cdr(Float64(data=float(val)),
+                                                             Float64.__msgtype__))
+    (rec,) = dataio.load_records([bag])
+    assert rec.n == t.size
+    np.testing.assert_allclose(rec.force, f, atol=1e-6)
+    assert rec.input_kind == 'current'
+    np.testing.assert_allclose(rec.command, i)
