@@ -41,7 +41,7 @@ def main(argv=None):
     """Print the timing table."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--damper', default='rd1005_bingham', help='inverse/plant damper model')
-    ap.add_argument('--vehicle', default='seed003_passenger')
+    ap.add_argument('--vehicle', default='city_car')
     ap.add_argument('--calls', type=int, default=20000)
     args = ap.parse_args(argv)
     car = cfg.load_vehicle(args.vehicle)

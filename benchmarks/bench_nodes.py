@@ -33,12 +33,17 @@ def losses(res):
     for topic in (c.IMU_BODY, c.IMU_WHEEL, c.STROKE):
         rows.append((f'plant -> controller {topic}', n, ctl['received'][topic]))
     rows.append((f'plant -> actuator {c.TRUTH_STATE}', n, act['motion_samples']))
-    rows.append((f'actuator -> plant {c.DAMPER_FORCE}', act['forces_published'],
-                 plant['forces_received']))
+    # The plant needs one force per step; the answer to its final sample may arrive after it
+    # has finished (not a loss).
+    need = min(act['forces_published'], plant['steps'])
+    rows.append((f'actuator -> plant {c.DAMPER_FORCE}', need,
+                 min(plant['forces_received'], need)))
     rows.append((f'controller -> actuator {c.CURRENT_COMMAND} (during the run)',
                  ctl['commands_after_start'],
                  min(act['commands_after_start'], ctl['commands_after_start'])))
     for topic in c.published_by('plant'):
+        if topic == c.CLOCK and plant['mode'] != 'lockstep':
+            continue  # /clock is published in lock-step only
         name = topic if topic.startswith('/') else ns + topic
         if name in rec:
             rows.append((f'plant -> recorder {topic}', n, rec[name]))

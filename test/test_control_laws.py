@@ -177,3 +177,32 @@ def test_closed_loop_runs_are_passive_and_law_specific(law):
     else:
         # A stale numba cache of the simulator would silently run another law: catch it.
         assert np.ptp(res.i_cmd) > 0.05
+
+
+def test_sensor_noise_is_reproducible_standard_normal():
+    p = ControllerParams(noise_acc=0.1, noise_seed=7).to_array()
+    draws = []
+    for _ in range(2):
+        s = np.zeros(L.N_CTRL_STATE)
+        draws.append(np.array([L.sensor_noise(p, s) for _ in range(20000)]))
+    assert np.array_equal(draws[0], draws[1])
+    assert abs(draws[0].mean()) < 0.03 and draws[0].std() == pytest.approx(1.0, abs=0.03)
+    other = ControllerParams(noise_acc=0.1, noise_seed=8).to_array()
+    s = np.zeros(L.N_CTRL_STATE)
+    assert L.sensor_noise(other, s) != draws[0][0]
+    with pytest.raises(ValueError):
+        ControllerParams(noise_seed=-1)
+    with pytest.raises(ValueError):
+        ControllerParams(noise_acc=-0.1)
+
+
+def test_noise_reaches_the_law():
+    # Constant law: noise never changes the command; skyhook at rest: it does.
+    road = rd.step(0.0, t0=0.1, duration=0.5)
+    runs = {}
+    for noise in (0.0, 0.5):
+        conf = CornerConfig(car=CAR, damper=DAMPER, driver=IDEAL, controller=L.configure(
+            'skyhook', CAR, DAMPER, IDEAL, noise_acc=noise, noise_stroke=noise * 1e-3))
+        runs[noise] = simulate(conf, road).i_cmd
+    assert np.all(runs[0.0] == 0.0)
+    assert np.ptp(runs[0.5]) > 0.0

@@ -119,3 +119,38 @@ def test_cli_tune(tmp_path, capsys):
     with pytest.raises(SystemExit):
         cli.main(['--laws', 'skyhook', '--scenarios', 'bump', '--no-plots', '--study', 'none',
                   '--tune', 'skyhook.c_sky=', '--out', str(out)])
+
+
+def test_cli_all_studies_light(tmp_path):
+    """Every study of the command runs end to end (light settings) and lands in the report."""
+    out = tmp_path / 'all'
+    assert cli.main(['--laws', 'passive_0A,add', '--scenarios', 'bump', '--study', 'all',
+                     '--light', '--out', str(out)]) == 0
+    report = (out / 'report.md').read_text()
+    for heading in ('## Seed 001', '## Seed 003', '## Best passive settings',
+                    'offline semi-active reference', '## Degradation with actuator speed',
+                    '## Degradation with sensor', '## Estimator delays', '## Sensor noise',
+                    'Comfort at equal working space'):
+        assert heading in report, heading
+    for name in ('control_seed001_linear', 'control_seed003_step', 'frequency_response',
+                 'degradation_actuator', 'tradeoff_bump', 'tradeoff_families_bump'):
+        assert (out / f'{name}.png').stat().st_size > 10000, name
+
+
+def test_fitted_model_json_as_damper(tmp_path):
+    """A damper fitted by diagnose (extended law) drives the plant and the inverse model."""
+    from mr_suspension.core.extended import ExtendedDamperParams
+    from mr_suspension.core.simulator import simulate
+    from mr_suspension.identification.model_io import model_dict, save_model
+    fitted = ExtendedDamperParams(c0=400.0, c1=900.0, fy0=30.0, fy1=450.0, i_sat=0.8,
+                                  k_series=5e5)
+    path = tmp_path / 'model.json'
+    save_model(path, model_dict(fitted, {'dead_time': 0.003, 'tau_rise': 0.007,
+                                         'tau_fall': 0.004}, ['saturation'], 'current'))
+    conf = runner.build_config('skyhook', damper=str(path), driver='ideal')
+    assert conf.damper == fitted
+    assert conf.controller.damper_model['law'] == 'extended'
+    res = simulate(conf, scn.make('bump').road)
+    assert np.all(np.isfinite(res.f_d)) and np.ptp(res.i_cmd) > 0.05
+    with pytest.raises(ValueError):
+        runner.load_damper(str(tmp_path / 'missing.json'))

@@ -156,3 +156,18 @@ def test_rosbag2_round_trip(tmp_path):
     np.testing.assert_allclose(rec.force, f, atol=1e-6)
     assert rec.input_kind == 'current'
     np.testing.assert_allclose(rec.command, i)
+
+
+def test_driver_identified_from_measured_current():
+    from mr_suspension.identification import diagnose, engine, synthetic
+
+    rec, _ = synthetic.make_record((), seed=1, duration=8.0)
+    coil = engine.field_current(rec.i_in, rec.dt, 0.003, 0.007, 0.004)
+    cols = {'time': rec.time, 'displacement': rec.displacement, 'velocity': rec.velocity,
+            'force': rec.force, 'current_command': rec.i_in, 'current': coil}
+    r2 = dataio.build_record('with-coil', cols)
+    drv = diagnose.identify_driver([r2])
+    assert drv['dead_time'] == pytest.approx(0.003, abs=1e-3)
+    assert drv['tau_rise'] == pytest.approx(0.007, rel=0.2)
+    assert drv['tau_fall'] == pytest.approx(0.004, rel=0.2)
+    assert diagnose.identify_driver([rec]) is None

@@ -3,6 +3,7 @@
 import math
 import time
 
+import pytest
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64
@@ -55,9 +56,11 @@ def test_plant_alone_lockstep_matches_stepper():
         plant = add(ex, nodes, PlantNode(context=ctx, parameter_overrides=params(
             lockstep=True, duration=0.2, start_delay=0.0, exit_at_end=False,
             road='{type: step, height: 0.03, t0: 0.01}')))
-        h = add(ex, nodes, Harness(ctx, pubs=(c.DAMPER_FORCE, c.CURRENT_COMMAND),
+        # The harness stands in for controller and actuator (every link must be discovered).
+        h = add(ex, nodes, Harness(ctx, pubs=(c.DAMPER_FORCE, c.CURRENT_COMMAND, c.COIL_CURRENT),
                                    subs=(c.IMU_BODY, c.TRUTH_STATE, c.CURRENT_COMMAND,
-                                         c.STROKE), lockstep=True))
+                                         c.STROKE, c.IMU_WHEEL, c.COIL_CURRENT),
+                                   lockstep=True))
 
         def answer(msg):
             v = msg.velocity[3]
@@ -173,3 +176,25 @@ def test_actuator_rejects_and_clamps_invalid_commands():
         assert common.stamp_to_ns(msg.header.stamp) == k * 1_000_000
         assert msg.effort[0] == force and msg.effort[1] == tangent
         assert h.got[c.COIL_CURRENT][k].data == coil
+
+
+@pytest.mark.parametrize('trigger', ['sample', 'timer'])
+def test_controller_with_unsynchronised_sensor_stamps(trigger):
+    """Stamps that never match: the sample trigger falls back, the timer trigger runs the law."""
+    with ros_context() as (ctx, ex, nodes):
+        ctl = add(ex, nodes, ControllerNode(context=ctx, parameter_overrides=params(
+            lockstep=False, trigger=trigger, sensor_timeout=0.02, fallback_current=1.25,
+            controller='passive_0A')))
+        h = add(ex, nodes, Harness(ctx, pubs=(c.IMU_BODY, c.IMU_WHEEL, c.STROKE),
+                                   subs=(c.CURRENT_COMMAND,)))
+        assert common.spin_until(ex, lambda: h.pubs[c.STROKE].get_subscription_count(), 5.0)
+        end = time.monotonic() + 0.3
+        k = 0
+        while time.monotonic() < end:
+            h.pubs[c.IMU_BODY].publish(_imu(k * 1_000_000, 9.81))
+            h.pubs[c.IMU_WHEEL].publish(_imu(k * 1_000_000 + 300_000, 9.81))
+            h.pubs[c.STROKE].publish(_joint(k * 1_000_000 + 600_000, [0.0]))
+            k += 1
+            common.spin_until(ex, lambda: False, 0.002, step=0.002)
+        assert ctl.fallback == (trigger == 'sample')
+        assert h.got[c.CURRENT_COMMAND][-1].data == (1.25 if trigger == 'sample' else 0.0)

@@ -71,6 +71,7 @@ N_MEAS = 7
 S_EST = 0
 S_FEBC = 4
 S_ILAST = 8
+S_RNG, S_GAUSS = 12, 13
 S_TMP = 16
 S_DMP = 32
 N_DMP_STATE = 16
@@ -88,7 +89,8 @@ ESTIMATION = {'sensors': 0.0, 'ideal': 1.0}
 # Parameter array layout: [i_min, i_max, law-specific..., damper model].
 (P_IMIN, P_IMAX, P_CURRENT, P_CSKY, P_CGND, P_ALPHA, P_FCROSS, P_KS, P_K0, P_K1, P_K2, P_K3,
  P_EST, P_FHP, P_FCR, P_FLP, P_MS, P_MU, P_KT, P_F1, P_F2, P_IROAD, P_FTAU, P_XBAND,
- P_IBODY, P_VEPS, P_AEPS, P_FSTAT, P_DLAW, P_DN, P_DP) = range(31)
+ P_IBODY, P_VEPS, P_AEPS, P_NACC, P_NSTROKE, P_NSEED, P_FSTAT, P_DLAW, P_DN,
+ P_DP) = range(34)
 N_CTRL_FIXED = P_DP
 
 # Default inverse model: RD-1005-3 class smooth Bingham (config/dampers/rd1005_bingham.yaml).
@@ -123,12 +125,14 @@ class ControllerParams:
     optimal, ``F_des = -K [x, v_s, z_u - z_r, v_u]``; empty = computed from ``lqr_weights`` =
     (body acceleration, stroke, tyre deflection, force) for the plant below), FEBC bands
     ``febc_f1 < febc_f2`` [Hz], body-band and wheel-hop currents ``febc_i_body``,
-    ``febc_i_road`` [A], smoothing
-    ``febc_tau`` [s], crossing hysteresis ``febc_x_band`` [m]. Estimation: ``'sensors'`` or
+    ``febc_i_road`` [A], smoothing ``febc_tau`` [s], crossing hysteresis ``febc_x_band`` [m].
+    Estimation: ``'sensors'`` or
     ``'ideal'``, body-velocity leak ``f_hp``, stroke-rate crossover ``f_cr`` and derivative
     cutoff ``f_lp`` [Hz]; ``v_eps`` [m/s] and ``a_eps`` [m/s^2] are the resolutions below
     which a velocity or acceleration counts as zero (at rest, sensor and round-off noise must
-    not toggle the on-off laws). Plant knowledge (PDD, clipped optimal, tyre-deflection estimate):
+    not toggle the on-off laws). ``noise_acc`` [m/s^2 RMS] and ``noise_stroke`` [m RMS] add
+    reproducible white sensor noise (seed ``noise_seed``) for studies; 0 in normal use.
+    Plant knowledge (PDD, clipped optimal, tyre-deflection estimate):
     ``m_s, m_u`` [kg], ``k_s, k_t, c_t``; ``damper_model``: the inverse model (damper YAML
     mapping with ``law``, a ``config/dampers`` name, or ``None`` for an RD-1005 class Bingham
     law). :meth:`with_plant` copies all of these from the simulated corner.
@@ -156,6 +160,9 @@ class ControllerParams:
     f_lp: float = 40.0
     v_eps: float = 1e-4
     a_eps: float = 1e-3
+    noise_acc: float = 0.0
+    noise_stroke: float = 0.0
+    noise_seed: int = 1
     m_s: float = 110.0
     m_u: float = 18.0
     k_s: float = 11000.0
@@ -173,6 +180,7 @@ class ControllerParams:
         check_nonneg(owner, i_min=self.i_min, current=self.current, c_sky=self.c_sky,
                      c_ground=self.c_ground, febc_i_road=self.febc_i_road,
                      febc_i_body=self.febc_i_body, v_eps=self.v_eps, a_eps=self.a_eps,
+                     noise_acc=self.noise_acc, noise_stroke=self.noise_stroke,
                      febc_x_band=self.febc_x_band, c_t=self.c_t)
         check_positive(owner, i_max=self.i_max, f_cross=self.f_cross, febc_f1=self.febc_f1,
                        febc_f2=self.febc_f2, febc_tau=self.febc_tau, f_hp=self.f_hp,
@@ -180,6 +188,9 @@ class ControllerParams:
                        k_s=self.k_s, k_t=self.k_t)
         if self.i_min > self.i_max:
             raise ValueError(f'{owner}: i_min must be <= i_max')
+        seed = self.noise_seed
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f'{owner}: noise_seed must be an integer >= 0, got {seed!r}')
         if not 0.0 <= self.alpha <= 1.0:
             raise ValueError(f'{owner}: alpha must be in [0, 1], got {self.alpha!r}')
         if self.febc_f1 >= self.febc_f2:
@@ -232,7 +243,9 @@ class ControllerParams:
                 self.f_cross, self.k_s, k[0], k[1], k[2], k[3], ESTIMATION[self.estimation],
                 self.f_hp, self.f_cr, self.f_lp, self.m_s, self.m_u, self.k_t, self.febc_f1,
                 self.febc_f2, self.febc_i_road, self.febc_tau, self.febc_x_band,
-                self.febc_i_body, self.v_eps, self.a_eps, static_force(model),
+                self.febc_i_body, self.v_eps, self.a_eps, self.noise_acc,
+                self.noise_stroke, float(int(self.noise_seed) % 2 ** 32),
+                static_force(model),
                 float(dmp.law_id_of(model)), float(dp.size)]
         return np.concatenate([np.array(head, dtype=np.float64), dp])
 
@@ -308,6 +321,9 @@ GAIN_DESCRIPTIONS = {
     'v_eps': 'velocity resolution [m/s]: smaller velocities count as zero (no switching on '
              'noise)',
     'a_eps': 'acceleration resolution [m/s^2]: smaller accelerations count as zero',
+    'noise_acc': 'studies: white noise added to both accelerometers [m/s^2 RMS] (0 = off)',
+    'noise_stroke': 'studies: white noise added to the stroke sensor [m RMS] (0 = off)',
+    'noise_seed': 'studies: seed of the reproducible sensor noise',
     'm_s': 'plant knowledge: body mass [kg]',
     'm_u': 'plant knowledge: wheel mass [kg]',
     'k_s': 'plant knowledge: spring stiffness [N/m] (PDD, clipped optimal)',
@@ -375,11 +391,36 @@ def _inverse(p, s, x, v, f_des, dt):
 
 
 @njit(cache=True)
+def _uniform(s):
+    """Next uniform in (0, 1) of the LCG ``r = (1664525 r + 1013904223) mod 2^32`` in ``s``."""
+    r = (1664525 * int(s[S_RNG]) + 1013904223) % 4294967296
+    s[S_RNG] = float(r)
+    return (r + 0.5) / 4294967296.0
+
+
+@njit(cache=True)
+def sensor_noise(p, s):
+    """Return a standard normal sample (Box-Muller on :func:`_uniform`), seeded by ``p``."""
+    if s[S_RNG] == 0.0 and s[S_GAUSS] == 0.0:
+        s[S_RNG] = p[P_NSEED] + 1.0
+    u1 = _uniform(s)
+    u2 = _uniform(s)
+    s[S_GAUSS] += 1.0
+    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+
+
+@njit(cache=True)
 def controller_step(cid, p, s, m, dt):
     """Return the current command of law ``cid`` for measurements ``m`` (module doc)."""
     x = m[M_STROKE]
     a_s = m[M_ACC_S]
-    vs_hat, v_hat = est.estimate_step(s[S_EST:S_EST + 4], a_s, m[M_ACC_U], x, dt, p[P_FHP],
+    a_u = m[M_ACC_U]
+    if p[P_NACC] > 0.0:
+        a_s += p[P_NACC] * sensor_noise(p, s)
+        a_u += p[P_NACC] * sensor_noise(p, s)
+    if p[P_NSTROKE] > 0.0:
+        x += p[P_NSTROKE] * sensor_noise(p, s)
+    vs_hat, v_hat = est.estimate_step(s[S_EST:S_EST + 4], a_s, a_u, x, dt, p[P_FHP],
                                       p[P_FCR], p[P_FLP])
     v_s = vs_hat
     v = v_hat
@@ -437,7 +478,8 @@ def controller_step(cid, p, s, m, dt):
     elif cid == CTRL_PDD:
         i = _inverse(p, s, x, v, -p[P_KS] * x, dt)
     elif cid == CTRL_CLIPPED_OPTIMAL:
-        a_u = m[M_ACC_U] if m[M_ACC_U] == m[M_ACC_U] else 0.0
+        if not a_u == a_u:
+            a_u = 0.0
         d_tyre = -(p[P_MS] * a_s + p[P_MU] * a_u) / p[P_KT]
         f_des = -(p[P_K0] * x + p[P_K1] * v_s + p[P_K2] * d_tyre + p[P_K3] * v_u)
         i = _inverse(p, s, x, v, f_des, dt)

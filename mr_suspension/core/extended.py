@@ -127,7 +127,7 @@ def _element(p, s, u, i, dt):
     mth = 1.0 - p[P_KAPPA] * s[S_E]
     if mth < 0.05:
         mth = 0.05
-    t = math.tanh(u / vy)
+    t = y if xh <= 0.0 else math.tanh(u / vy)
     m = mth * (1.0 + p[P_RHO] * t)
     dm = mth * p[P_RHO] * (1.0 - t * t) / vy
     core = c * u + fy * y

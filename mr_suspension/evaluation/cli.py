@@ -18,7 +18,7 @@ from mr_suspension.control.laws import LAW_IDS
 from mr_suspension.core import config as cfg
 from mr_suspension.evaluation import plots, runner, scenarios as scn, studies, tables
 
-STUDIES = ('frequency', 'tradeoff', 'seeds', 'bounds', 'degradation', 'estimator')
+STUDIES = ('frequency', 'tradeoff', 'seeds', 'bounds', 'degradation', 'noise', 'estimator')
 
 EPILOG = """\
 laws: controller sets of config/controllers ({sets}) or bare law names ({laws}).
@@ -72,7 +72,8 @@ def add_arguments(parser):
     parser.add_argument('--vehicle', default='city_car',
                         help='config/vehicles name or YAML path (default: %(default)s)')
     parser.add_argument('--damper', default='rd1005_bingham',
-                        help='config/dampers name or YAML path (default: %(default)s)')
+                        help='config/dampers name, YAML path or a model.json fitted by '
+                             'diagnose (default: %(default)s)')
     parser.add_argument('--driver', default='wonder_box',
                         help='config/drivers name or YAML path (default: %(default)s)')
     parser.add_argument('--delay', type=float, default=0.0,
@@ -96,6 +97,9 @@ def add_arguments(parser):
     parser.add_argument('--study', default='tradeoff',
                         help="extra studies, comma separated or 'all' "
                              f"({', '.join(STUDIES)}; default: %(default)s; 'none' for none)")
+    parser.add_argument('--light', action='store_true',
+                        help='light studies: bump instead of ISO roads, few frequencies and '
+                             'optimiser iterations (smoke runs; the figures are rough)')
     parser.add_argument('--dt', type=float, default=1e-3, help='step [s] (default: 1e-3)')
     parser.add_argument('--no-plots', action='store_true', help='tables only')
     parser.add_argument('--out', default='evaluation_out',
@@ -166,6 +170,7 @@ def run_evaluate(args, log=print):
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     common = {'vehicle': args.vehicle, 'damper': args.damper, 'driver': args.driver}
+    study_road = 'bump' if args.light else 'iso_C_20'
     t0 = time.perf_counter()
     rows, kept = runner.run(laws, names, control_delay=args.delay,
                             actuator_scale=args.actuator_scale, overrides=overrides, dt=args.dt,
@@ -191,6 +196,20 @@ def run_evaluate(args, log=print):
         if not args.no_plots:
             plots.tradeoff(rows, out / f'tradeoff_{ref}.png', sweep, ref,
                            f'comfort vs working space and road holding, {ref}')
+        fams = {}
+        for law in laws:
+            name = law if law in runner.GAIN_SWEEPS else cfg.load_controller(law).law \
+                if law in _safe_sets() else law
+            if name not in runner.GAIN_SWEEPS:
+                continue
+            param, values = runner.GAIN_SWEEPS[name]
+            values = values[::2] if args.light else values
+            fams[f'{law} ({param})'] = runner.tune(
+                law, param, values, ref, control_delay=args.delay, overrides=overrides,
+                dt=args.dt, **common)[3]
+        if fams and not args.no_plots:
+            plots.tradeoff_families(fams, out / f'tradeoff_families_{ref}.png', sweep,
+                                    f'gain families vs the passive family, {ref}')
         eq = studies.equal_space_comparison(rows, sweep, ref)
         report += ['', f'## Comfort at equal working space vs the passive family ({ref})', '',
                    _fmt_rows(eq, ['law', 'working_space_rms', 'body_acc_wk_rms',
@@ -223,7 +242,8 @@ def run_evaluate(args, log=print):
         log(f'tune {law}.{param} on {target}: best {best}\n{text}')
     if 'seeds' in studies_:
         from mr_suspension.evaluation import seeds
-        r1 = seeds.seed001_reproduction(None if args.no_plots else out)
+        r1 = seeds.seed001_reproduction(None if args.no_plots else out,
+                                        n_sim=6 if args.light else 24)
         report += ['', '## Seed 001', '', 'C_eq [N s/m] per current (rows 0..0.5 A) and '
                    'frequency (0.4..3.6 Hz):', '', '```', np.array2string(np.round(r1['ceq'])),
                    '```', '']
@@ -240,37 +260,54 @@ def run_evaluate(args, log=print):
                            'body_acc_rms', 'body_acc_peak', 'tyre_load_rms'],
                       {'stroke_peak': 100.0})]
     if 'bounds' in studies_:
-        best, _, _ = studies.best_passive('iso_C_20', args.vehicle, args.damper)
-        report += ['', '## Best passive settings (iso_C_20)', '',
+        best, _, _ = studies.best_passive(study_road, args.vehicle, args.damper)
+        report += ['', f'## Best passive settings ({study_road})', '',
                    _fmt_rows([{'index': k, 'best current [A]': v['current'][0],
                                'value': v['current'][1], 'best linear c [N s/m]':
                                v['linear'][0], 'value (linear)': v['linear'][1]}
                               for k, v in best.items()],
                              ['index', 'best current [A]', 'value', 'best linear c [N s/m]',
                               'value (linear)'])]
-        for road in ('bump', 'iso_C_20'):
+        for road in (('bump',) if args.light else ('bump', 'iso_C_20')):
             bc = studies.bound_comparison(laws, road, driver=args.driver,
-                                          vehicle=args.vehicle, damper=args.damper)
+                                          vehicle=args.vehicle, damper=args.damper,
+                                          duration=1.0 if args.light else 3.0,
+                                          block=0.1 if args.light else 0.02,
+                                          maxiter=5 if args.light else 40)
             report += ['', f'## Laws vs best passive and the offline semi-active reference '
                        f'({road}, 3 s)', '',
                        _fmt_rows(bc, ['objective', 'law', 'value', 'closeness'])]
     if 'degradation' in studies_:
-        rs, rdl = studies.degradation(laws, 'iso_C_20', **common)
-        report += ['', '## Degradation with actuator speed (iso_C_20)', '',
+        rs, rdl = studies.degradation(laws, study_road, scales=(0.0, 1.0, 4.0) if args.light
+                                      else (0.0, 0.5, 1.0, 2.0, 4.0), **common)
+        report += ['', f'## Degradation with actuator speed ({study_road})', '',
                    _fmt_rows(rs, ['law', 'scale', 'body_acc_wk_rms', 'working_space_rms',
                                   'tyre_load_rms'], {'working_space_rms': 1e3}), '',
-                   '## Degradation with sensor + compute delay (iso_C_20)', '',
+                   f'## Degradation with sensor + compute delay ({study_road})', '',
                    _fmt_rows(rdl, ['law', 'delay', 'body_acc_wk_rms', 'working_space_rms',
                                    'tyre_load_rms'], {'working_space_rms': 1e3,
                                                       'delay': 1e3})]
         if not args.no_plots:
             scales = sorted({r['scale'] for r in rs})
-            plots.lines(scales, {law: [r['body_acc_wk_rms'] for r in rs if r['law'] == law]
-                                 for law in laws}, out / 'degradation_actuator.png',
-                        'actuator time-constant scale (1 = Wonder Box + fluid)',
-                        'Wk body acceleration RMS [m/s^2]', 'iso_C_20')
+            series = {}
+            for law in laws:
+                wk = [r['body_acc_wk_rms'] for r in rs if r['law'] == law]
+                if max(wk) - min(wk) > 1e-4 * max(wk):       # constant currents: flat, skip
+                    series[law] = [100.0 * (w / wk[0] - 1.0) for w in wk]
+            plots.lines(scales, series, out / 'degradation_actuator.png',
+                        'actuator time-constant scale (0 = ideal, 1 = Wonder Box + fluid)',
+                        'Wk body acceleration RMS change vs ideal actuator [%]', study_road)
+    if 'noise' in studies_:
+        levels = studies.NOISE_LEVELS[::3] if args.light else studies.NOISE_LEVELS
+        nr = studies.noise_study(laws, study_road, levels, **common)
+        report += ['', f'## Sensor noise ({study_road}; accelerometers m/s^2 RMS, stroke mm '
+                   'RMS)', '', _fmt_rows(nr, ['law', 'noise_acc', 'noise_stroke',
+                                              'body_acc_wk_rms', 'working_space_rms',
+                                              'tyre_load_rms'],
+                                         {'noise_stroke': 1e3, 'working_space_rms': 1e3})]
     if 'estimator' in studies_:
-        er = studies.estimator_delays()
+        er = studies.estimator_delays(freqs=(1.0, 5.0) if args.light
+                                      else (0.5, 1.0, 2.0, 5.0, 10.0))
         report += ['', '## Estimator delays (positive = lag)', '', _fmt_rows(er, list(er[0]))]
         report += ['', f'body-velocity error after 60 s of a 0.05 m/s^2 accelerometer bias: '
                    f'{studies.bias_drift():.4f} m/s (bound 0.05 / (2 pi 0.1) = '

@@ -123,11 +123,40 @@ def tradeoff(rows, path, passive=None, scenario=None, title=''):
     plt.close(fig)
 
 
+def tradeoff_families(families, path, passive, title=''):
+    """Comfort against working space and tyre load for gain sweeps of each law.
+
+    ``families``: ``{label: metric arrays}`` (one point per gain value, e.g. from
+    :func:`~mr_suspension.evaluation.runner.tune`); ``passive``: the constant-current family.
+    """
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    colours = plt.cm.tab10(np.linspace(0.0, 1.0, 10, endpoint=False))
+    for ax, key, xlabel, scale in ((axes[0], 'working_space_rms', 'working space RMS [mm]',
+                                    1e3),
+                                   (axes[1], 'tyre_load_rms', 'dynamic tyre load RMS [N]', 1.0)):
+        ax.plot(np.asarray(passive[key]) * scale, passive['body_acc_wk_rms'], 'k.-', lw=1.2,
+                label=passive.get('label', 'passive'))
+        for k, (label, met) in enumerate(families.items()):
+            ax.plot(np.asarray(met[key]) * scale, met['body_acc_wk_rms'],
+                    MARKERS[k % len(MARKERS)] + '-', color=colours[k % 10], lw=0.8, ms=4,
+                    label=label)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel('Wk body acceleration RMS [m/s^2]')
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=7, ncol=2)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def lines(xs, series, path, xlabel, ylabel, title='', logx=False):
     """Draw a simple line figure: ``series`` is ``{label: y}`` over ``xs``."""
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    for label, ys in series.items():
-        ax.plot(xs, ys, 'o-', label=label)
+    colours = plt.cm.tab10(np.linspace(0.0, 1.0, 10, endpoint=False))
+    for k, (label, ys) in enumerate(series.items()):
+        ax.plot(xs, ys, MARKERS[k % len(MARKERS)] + '-', color=colours[k % 10], label=label)
     if logx:
         ax.set_xscale('symlog', linthresh=0.5)
     ax.set_xlabel(xlabel)

@@ -27,8 +27,34 @@ DEFAULT_LAWS = ('passive_0A', 'passive_1A', 'skyhook_onoff', 'skyhook', 'groundh
                 'add', 'sh_add', 'pdd', 'clipped_optimal', 'febc')
 
 
+# Main gain of each law and the values of its trade-off family (city car scale).
+GAIN_SWEEPS = {
+    'skyhook_onoff': ('i_max', (0.1, 0.2, 0.3, 0.5, 1.0)),
+    'skyhook': ('c_sky', (500.0, 1000.0, 2000.0, 4000.0, 8000.0)),
+    'groundhook': ('c_ground', (250.0, 500.0, 1000.0, 2000.0, 4000.0)),
+    'hybrid': ('c_sky', (500.0, 1000.0, 2000.0, 4000.0, 8000.0)),
+    'add': ('i_max', (0.1, 0.2, 0.5, 1.0, 2.0)),
+    'sh_add': ('i_max', (0.1, 0.2, 0.5, 1.0, 2.0)),
+    'pdd': ('i_max', (0.1, 0.3, 0.5, 1.0, 2.0)),
+    'clipped_optimal': ('i_max', (0.1, 0.3, 0.5, 1.0, 2.0)),
+    'febc': ('febc_i_body', (0.0, 0.1, 0.3, 0.5, 1.0)),
+}
+
+
 def _load(kind, loader, value):
     return value if not isinstance(value, str) else loader(value)
+
+
+def load_damper(value):
+    """Damper parameters from an object, a ``config/dampers`` name or YAML, or a ``model.json``.
+
+    A ``model.json`` is a damper fitted by ``mr-suspension diagnose`` (extended law); its
+    current dynamics are not used here (the driver set models them).
+    """
+    if isinstance(value, str) and value.endswith('.json'):
+        from mr_suspension.identification.model_io import load_fitted_model
+        return load_fitted_model(value)[0]
+    return _load('dampers', cfg.load_damper, value)
 
 
 def scaled_driver(driver, scale):
@@ -70,7 +96,7 @@ def build_config(law, vehicle='city_car', damper='rd1005_bingham', driver='wonde
                  control_delay=0.0, actuator_scale=1.0, overrides=None, dt=1e-3):
     """Corner configuration of ``law`` on the given vehicle, damper and driver (names/objects)."""
     car = _load('vehicles', cfg.load_vehicle, vehicle)
-    dmp = _load('dampers', cfg.load_damper, damper)
+    dmp = load_damper(damper)
     drv = _load('drivers', cfg.load_driver, driver)
     if not isinstance(drv, DriverParams):
         raise ValueError('driver must be a DriverParams or a config/drivers name')

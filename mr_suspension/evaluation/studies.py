@@ -10,6 +10,7 @@
 * :func:`degradation`: each law with the actuator time constants and dead time scaled (0 =
   ideal, 1 = Wonder Box + fluid, about 25 ms on falling current) and with added sensor and
   compute delay.
+* :func:`noise_study`: each law with white noise on the accelerometers and the stroke sensor.
 * :func:`estimator_delays`: delay of the sensor-based velocity estimates against the truth,
   from the phase of the first harmonic at several frequencies, ``tau = -phase / omega``.
 """
@@ -150,6 +151,28 @@ def degradation(laws=runner.DEFAULT_LAWS, scenario='iso_C_20', scales=(0.0, 0.5,
             met = ride_metrics(simulate(conf, sc.road))
             rows_d.append({'law': law, 'delay': d, **{k: met[k] for k in INDICES}})
     return rows_s, rows_d
+
+
+NOISE_LEVELS = ((0.0, 0.0), (0.05, 1e-4), (0.2, 5e-4), (0.5, 1e-3))
+
+
+def noise_study(laws=runner.DEFAULT_LAWS, scenario='iso_C_20', levels=NOISE_LEVELS,
+                vehicle='city_car', damper='rd1005_bingham', driver='wonder_box', dt=1e-3):
+    """Metrics of each law with white sensor noise ``(accelerometers [m/s^2], stroke [m])``.
+
+    The noise enters the measurements the control core sees (reproducible, seed 1), so the
+    estimator, the resolution thresholds and the switching laws all face it.
+    """
+    sc = scn.make(scenario, dt)
+    rows = []
+    for law in laws:
+        for n_acc, n_x in levels:
+            conf = runner.build_config(law, vehicle, damper, driver, dt=dt, overrides={
+                '*': {'noise_acc': n_acc, 'noise_stroke': n_x}})
+            met = ride_metrics(simulate(conf, sc.road))
+            rows.append({'law': law, 'noise_acc': n_acc, 'noise_stroke': n_x,
+                         **{k: met[k] for k in INDICES}})
+    return rows
 
 
 def _phase(t, y, f):

@@ -22,6 +22,8 @@ T_MIN = 2.0
 CORR_AMBIG = 0.8
 MAX_CAUSES = 3
 SEARCH_RATE = 250.0
+JOINT_FEV = 40
+CLEAR_LOSS = 0.25
 UPGRADE = 'current_lag->current_lag_asymmetric'
 NESTED = {('current_lag', 'current_lag_asymmetric')}
 EXCLUSIVE = ({'current_lag', 'current_lag_asymmetric'},)
@@ -100,6 +102,10 @@ def testability(records):
         untestable.append('gas_spring')
     longest = max(r.duration for r in records)
     notes['longest_record_s'] = round(longest, 1)
+    if all(r.input_kind != 'current' for r in records):
+        notes['driver_vs_fluid'] = ('no measured coil current: driver lag and fluid '
+                                    '(demagnetisation) lag are one lumped current lag; record '
+                                    'the coil current to split them')
     if longest < 15.0:
         untestable.append('thermal_fade')
         notes['thermal'] = 'no record of 15 s or more: no sustained heating to observe'
@@ -120,6 +126,46 @@ def testability(records):
         notes['single_motion'] = ('one frequency and amplitude only: hysteresis, series '
                                   'stiffness and gas spring can hardly be told apart')
     return sorted(set(untestable), key=engine.EFFECTS.index), notes
+
+
+def identify_driver(records):
+    """Fit the driver (command -> measured coil current) when both are recorded, else None.
+
+    Same dynamics as the field current (dead time, rise/fall lags; core.driver), by a grid
+    over ``(dead_time, tau_rise, tau_fall)`` and a local refinement; least squares on the
+    current. With it the fitted force-model lags are the fluid's alone (seed 000 5.2-5.3).
+    """
+    recs = [r for r in records if r.input_kind == 'current' and r.command is not None]
+    if not recs or max(float(np.ptp(r.command)) for r in recs) <= 0:
+        return None
+    ms = 1e-3
+
+    def cost(dead, tr, tf):
+        err = 0.0
+        for r in recs:
+            y = engine.field_current(r.command, r.dt, dead, tr, tf)
+            err += float(np.sum((r.i_in - y) ** 2))
+        return err
+
+    taus = np.array([0, 1, 2, 4, 7, 12, 20, 35, 60, 100]) * ms
+    best = (np.inf, 0.0, 0.0, 0.0)
+    for dead in np.array([0, 1, 2, 3, 5, 8, 12, 20, 30]) * ms:
+        for tr in taus:
+            for tf in taus:
+                c = cost(dead, tr, tf)
+                if c < best[0]:
+                    best = (c, dead, tr, tf)
+    c, dead, tr, tf = best
+    for _ in range(3):
+        for j, fac in ((1, 0.8), (1, 1.25), (2, 0.8), (2, 1.25), (3, 0.8), (3, 1.25)):
+            cand = [dead, tr, tf]
+            cand[j - 1] = cand[j - 1] * fac
+            cc = cost(*cand)
+            if cc < c:
+                c, (dead, tr, tf) = cc, cand
+    var = sum(float(np.sum((r.i_in - np.mean(r.i_in)) ** 2)) for r in recs)
+    return {'dead_time': dead, 'tau_rise': tr, 'tau_fall': tf,
+            'nrmse': float(np.sqrt(c / max(var, 1e-300)))}
 
 
 def _compatible(effects, e):
@@ -191,8 +237,14 @@ def _children(ds, chosen, candidates, current, tick):
         if e in chosen or not _compatible(chosen, e):
             continue
         pool[e] = engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
-                             start_theta=current.theta, new=(e,))
+                             start_theta=current.theta, new=(e,), sweeps=1)
         tick('+'.join(list(chosen) + [e]))
+    # Screening done with one sweep; the two most promising children get a second one.
+    for e in sorted(pool, key=lambda k: pool[k].sse)[:2]:
+        f = pool[e]
+        g = engine.fit(ds, f.effects, start_eta=f.eta, start_theta=f.theta, new=(), sweeps=1)
+        if g.sse < f.sse:
+            pool[e] = g
     if 'current_lag' in chosen and 'current_lag_asymmetric' in candidates:
         # Upgrade a symmetric lag to the asymmetric one (nested: rise = fall = tau).
         eta = dict(current.eta)
@@ -313,13 +365,14 @@ def run(records, effects=engine.EFFECTS, n_folds=5, progress=None, search_rate=S
         if not (pooled >= G_MIN and t >= T_MIN):
             ambiguous.append(pair)
     final_search = final
+    ds_search = ds
     if search_rate:
         ds = engine.Dataset(full, n_folds=n_folds)
         base = engine.fit(ds, (), start_eta=base.eta, start_theta=base.theta, new=())
         tick('baseline (full rate)')
         if chosen:
             final = engine.fit(ds, tuple(final.effects), start_eta=final.eta,
-                               start_theta=final.theta, new=(), sweeps=3)
+                               start_theta=final.theta, new=(), sweeps=0, joint=JOINT_FEV)
             tick('extended (full rate)')
             # Backward check again at the full rate: a small cause found on decimated
             # records may only compensate the coarser discretisation.
@@ -327,6 +380,8 @@ def run(records, effects=engine.EFFECTS, n_folds=5, progress=None, search_rate=S
             while changed and len(chosen) > 1:
                 changed = False
                 for e in list(chosen):
+                    if drop_loss.get(e, 0.0) >= CLEAR_LOSS:
+                        continue  # far from the threshold at the search rate
                     rest = tuple(c for c in final.effects if c != e)
                     sub = engine.fit(ds, rest, start_eta=final.eta, start_theta=final.theta,
                                      new=())
@@ -339,8 +394,37 @@ def run(records, effects=engine.EFFECTS, n_folds=5, progress=None, search_rate=S
                         final = sub
                         changed = True
                         break
+            clear = True
+            if 'current_lag_asymmetric' in chosen:
+                # How much rise != fall pays in the final model at the search rate.
+                eta = dict(final_search.eta)
+                eta['tau_lag'] = float(np.sqrt(max(eta['tau_rise'], 1e-4)
+                                               * max(eta['tau_fall'], 1e-4)))
+                down = tuple('current_lag' if c == 'current_lag_asymmetric' else c
+                             for c in final_search.effects)
+                sub = engine.fit(ds_search, down, start_eta=eta, start_theta=final_search.theta,
+                                 new=('current_lag',))
+                clear = fold_stats(final_search.test, sub.test)[0] >= CLEAR_LOSS
+            if 'current_lag_asymmetric' in chosen and not clear:
+                # Nested check at the full rate: keep rise != fall only if it pays.
+                eta = dict(final.eta)
+                eta['tau_lag'] = float(np.sqrt(max(eta['tau_rise'], 1e-4)
+                                               * max(eta['tau_fall'], 1e-4)))
+                down = tuple('current_lag' if c == 'current_lag_asymmetric' else c
+                             for c in final.effects)
+                sub = engine.fit(ds, down, start_eta=eta, start_theta=final.theta,
+                                 new=('current_lag',))
+                tick('symmetric lag (full rate)')
+                if not accepted(final.test, sub.test):
+                    chosen = ['current_lag' if c == 'current_lag_asymmetric' else c
+                              for c in chosen]
+                    order = ['current_lag' if c == 'current_lag_asymmetric' else c
+                             for c in order]
+                    drop_loss['current_lag'] = drop_loss.pop('current_lag_asymmetric', 0.0)
+                    final = sub
         else:
             final = base
+    driver = identify_driver(full)
     base_exact = exact_heldout(ds, base)
     final_exact = exact_heldout(ds, final) if chosen else base_exact
     order = sorted(order, key=lambda e: -drop_loss.get(e, 0.0))
@@ -351,4 +435,4 @@ def run(records, effects=engine.EFFECTS, n_folds=5, progress=None, search_rate=S
             'swaps': swaps, 'untestable': untestable, 'notes': notes,
             'steps': steps, 'verdict': verdict, 'base_exact': base_exact,
             'final_exact': final_exact, 'fits': fits, 'final_search': final_search,
-            'search_dt': [r.dt for r in records]}
+            'search_dt': [r.dt for r in records], 'driver': driver}

@@ -22,6 +22,7 @@ import math
 
 from numba import njit
 import numpy as np
+from scipy import optimize
 
 from mr_suspension.core.extended import ExtendedDamperParams, simulate_extended
 
@@ -301,11 +302,13 @@ def _search_order(effects, new):
     return names
 
 
-def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None):
+def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, joint=0):
     """Fit one model by coordinate search over ``eta`` with linear ``theta`` at every point.
 
     ``start_eta``/``start_theta`` warm-start from a parent model; ``new`` are the effects
-    whose parameters are searched on their full grid first (the others only locally).
+    whose parameters are searched on their full grid first (the others only locally);
+    ``joint`` > 0 ends with a Nelder-Mead polish of that many evaluations on all
+    continuous parameters together.
     """
     effects = tuple(effects)
     eta = dict(neutral_eta())
@@ -424,7 +427,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None):
     names = _search_order(effects, new)
     warm = start_eta is not None and len(new) < len(effects)
     if sweeps is None:
-        sweeps = 2 if (len(names) > 1 or force_dep) and not warm else 1
+        sweeps = 2 if (len(names) > 1 or force_dep) and (not warm or new) else 1
     if 'tau_rise' in names and 'tau_rise' not in (start_eta or {}):
         # Symmetric start for the asymmetric lag: a common time constant first.
         best = None
@@ -455,6 +458,25 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None):
             refine(name, res)
             update_theta()
     polish([n for n in names if n in _new_names(new) or n == 'dead_time'] + ['v_y'])
+    cont = [n for n in names + ['v_y'] if n != 'dead_time'
+            and (n == 'rho' or state['best'].eta[n] > 0)]
+    if joint and len(cont) >= 2:
+        # Joint Nelder-Mead on log-parameters: coupled pairs (k1 and v_y, x_h and k1) defeat
+        # a coordinate search.
+        z0 = np.array([state['best'].eta[n] if n == 'rho' else math.log(state['best'].eta[n])
+                       for n in cont])
+
+        def obj(z):
+            e = dict(state['best'].eta)
+            for n, val in zip(cont, z):
+                e[n] = float(np.clip(val, -0.49, 0.49)) if n == 'rho' else float(math.exp(val))
+            return ev(e).sse
+
+        simplex = np.vstack([z0] + [z0 + 0.15 * np.eye(len(z0))[j] for j in range(len(z0))])
+        optimize.minimize(obj, z0, method='Nelder-Mead',
+                          options={'maxfev': joint, 'initial_simplex': simplex,
+                                   'xatol': 1e-3, 'fatol': 0.0})
+        update_theta()
     if force_dep:
         for _ in range(2):
             update_theta()

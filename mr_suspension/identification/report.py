@@ -105,6 +105,11 @@ def build(res, records, validate=(), elapsed=None):
         'data': [{'name': r.name, 'samples': r.n, 'dt': r.dt, 'input': r.input_kind,
                   'velocity': r.velocity_source} for r in records],
     }
+    if res.get('driver'):
+        report['driver'] = {**res['driver'], 'note': (
+            'command -> measured coil current; the extended model current dynamics are '
+            'then the fluid part (core.driver: driver tau_rise/tau_fall/dead_time, fluid '
+            'fluid_tau_rise/fluid_tau_fall)')}
     if res['untestable']:
         report['doe'] = ('mr-suspension doe --out programme.csv writes a rig programme '
                          '(displacement and current command) that makes every catalogue '
@@ -114,9 +119,11 @@ def build(res, records, validate=(), elapsed=None):
     ext_params = final.params() if res['causes'] else base.params()
     ext_dyn = final.dynamics() if res['causes'] else engine.current_dynamics((), base.eta)
     kinds = sorted({r.input_kind for r in records})
+    extra = {'heldout_nrmse': ext_n, 'baseline_heldout_nrmse': base_n}
+    if res.get('driver'):
+        extra['driver'] = {k: res['driver'][k] for k in ('dead_time', 'tau_rise', 'tau_fall')}
     model = model_io.model_dict(ext_params, ext_dyn, res['causes'], kinds[0],
-                                [r.name for r in records],
-                                {'heldout_nrmse': ext_n, 'baseline_heldout_nrmse': base_n})
+                                [r.name for r in records], extra)
     if validate:
         vstd = float(np.std(np.concatenate([r.force for r in validate])))
         bdyn = engine.current_dynamics((), base.eta)

@@ -28,7 +28,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from mr_suspension.core.stepper import ActuatorStepper
-from mr_suspension.nodes import common, contract as c
+from mr_suspension.nodes import cdr, common, contract as c
 
 NODE = 'actuator'
 SUSPENSION = c.JOINTS_TRUTH.index('suspension')
@@ -63,10 +63,11 @@ class ActuatorNode(Node):
                                                common.qos(c.DAMPER_FORCE, self.lockstep))
         self.pub_coil = self.create_publisher(Float64, c.COIL_CURRENT,
                                               common.qos(c.COIL_CURRENT, self.lockstep))
+        # Serialized messages (raw=True), read with the fast CDR readers.
         self.create_subscription(Float64, c.CURRENT_COMMAND, self._on_command,
-                                 common.qos(c.CURRENT_COMMAND, self.lockstep))
+                                 common.qos(c.CURRENT_COMMAND, self.lockstep), raw=True)
         self.create_subscription(JointState, c.TRUTH_STATE, self._on_motion,
-                                 common.qos(c.TRUTH_STATE, self.lockstep))
+                                 common.qos(c.TRUTH_STATE, self.lockstep), raw=True)
         self.msg_force = JointState()
         self.msg_force.header.frame_id = c.FRAME_SUSPENSION
         self.msg_force.name = list(c.JOINTS_DAMPER)
@@ -105,7 +106,7 @@ class ActuatorNode(Node):
         self.n_commands += 1
         if self.stats.marked:
             self.n_commands_run += 1
-        i = self.validate(float(msg.data))
+        i = self.validate(cdr.float64(msg))
         self.command = i
         self.command_time = time.monotonic()
         self.have_command = True
@@ -114,7 +115,8 @@ class ActuatorNode(Node):
             self._run_lockstep()
 
     def _on_motion(self, msg):
-        if len(msg.position) <= SUSPENSION or len(msg.velocity) <= SUSPENSION:
+        stamp, position, velocity, _ = cdr.joint_state(msg)
+        if len(position) <= SUSPENSION or len(velocity) <= SUSPENSION:
             self.get_logger().error('actuator: truth/state without the suspension joint',
                                     throttle_duration_sec=1.0)
             return
@@ -122,8 +124,7 @@ class ActuatorNode(Node):
         self.last_input = time.monotonic()
         if not self.stats.marked:
             self.stats.mark()
-        motion = (msg.header.stamp, float(msg.position[SUSPENSION]),
-                  float(msg.velocity[SUSPENSION]))
+        motion = (stamp, position[SUSPENSION], velocity[SUSPENSION])
         if self.lockstep:
             self.motions.append(motion)
             self._run_lockstep()
@@ -149,7 +150,7 @@ class ActuatorNode(Node):
             x, v = 0.0, 0.0
         coil, _, force, tangent = self.stepper.step(i_cmd, x, v)
         m = self.msg_force
-        m.header.stamp = stamp
+        common.set_stamp(m.header, stamp)
         m.position = [x, 0.0]
         m.velocity = [v, 0.0]
         m.effort = [force, tangent]

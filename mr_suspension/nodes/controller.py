@@ -29,7 +29,7 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64
 
 from mr_suspension.core.stepper import ControllerStepper
-from mr_suspension.nodes import common, contract as c
+from mr_suspension.nodes import cdr, common, contract as c
 
 NODE = 'controller'
 
@@ -67,9 +67,9 @@ class ControllerNode(Node):
                                (c.IMU_WHEEL, Imu, self._on_imu_u),
                                (c.STROKE, JointState, self._on_stroke)):
             self.create_subscription(cls, topic, cb, common.qos(topic, self.lockstep),
-                                     qos_overriding_options=over)
+                                     qos_overriding_options=over, raw=True)
         self.create_subscription(Float64, c.COIL_CURRENT, self._on_coil,
-                                 common.qos(c.COIL_CURRENT, self.lockstep))
+                                 common.qos(c.COIL_CURRENT, self.lockstep), raw=True)
         self.msg = Float64()
         # Newest value and monotonic arrival time per sensor.
         self.latest = {c.IMU_BODY: None, c.IMU_WHEEL: None, c.STROKE: None}
@@ -82,6 +82,7 @@ class ControllerNode(Node):
         self.n_fallback = 0
         self.n_cmd = 0
         self.last_input = time.monotonic()
+        self.last_law = -math.inf
         self.n_cmd_run = 0
         self.n_sensor = dict.fromkeys(self.latest, 0)
         self.timer = None
@@ -98,24 +99,29 @@ class ControllerNode(Node):
         self.latest[topic] = value
         self.arrival[topic] = time.monotonic()
         if self.lockstep or self.trigger == 'sample':
-            self.pending.setdefault(common.stamp_to_ns(stamp), {})[topic] = value
+            self.pending.setdefault(stamp, {})[topic] = value
             self._run_samples()
 
-    def _on_imu_s(self, msg):
-        self._store(c.IMU_BODY, msg.header.stamp, msg.linear_acceleration.z - self.gravity)
+    # Messages arrive serialized (raw=True) and are read with the fast CDR readers.
 
-    def _on_imu_u(self, msg):
-        self._store(c.IMU_WHEEL, msg.header.stamp, msg.linear_acceleration.z - self.gravity)
+    def _on_imu_s(self, raw):
+        stamp, acc = cdr.imu_acc_z(raw)
+        self._store(c.IMU_BODY, stamp, acc - self.gravity)
 
-    def _on_stroke(self, msg):
-        x = float(msg.position[0]) if len(msg.position) else math.nan
-        self._store(c.STROKE, msg.header.stamp, x)
+    def _on_imu_u(self, raw):
+        stamp, acc = cdr.imu_acc_z(raw)
+        self._store(c.IMU_WHEEL, stamp, acc - self.gravity)
 
-    def _on_coil(self, msg):
+    def _on_stroke(self, raw):
+        stamp, position, _, _ = cdr.joint_state(raw)
+        self._store(c.STROKE, stamp, float(position[0]) if position else math.nan)
+
+    def _on_coil(self, raw):
         self.last_input = time.monotonic()
-        self.coil_latest = float(msg.data)
+        value = cdr.float64(raw)
+        self.coil_latest = value
         if self.lockstep:
-            self.coil.append(float(msg.data))
+            self.coil.append(value)
             self._run_samples()
 
     # -- control ---------------------------------------------------------------------------
@@ -134,6 +140,7 @@ class ControllerNode(Node):
             if self.fallback:
                 self.get_logger().info('controller: sensors are back; control law resumed')
             self.fallback = False
+            self.last_law = time.monotonic()
             i_cmd = self.stepper.step(acc_s, acc_u, x, field)
         self.msg.data = float(i_cmd)
         self.pub_cmd.publish(self.msg)
@@ -148,6 +155,9 @@ class ControllerNode(Node):
         if stale:
             return f'sensor data stale for more than {self.sensor_timeout:g} s ' \
                 f'({", ".join(stale)})'
+        if self.trigger == 'sample' and now - self.last_law > self.sensor_timeout:
+            return 'no complete sensor sample (same stamp on imu/body, imu/wheel and stroke) ' \
+                f'for {self.sensor_timeout:g} s; use trigger: timer for unsynchronised sensors'
         return None
 
     def _on_tick(self):

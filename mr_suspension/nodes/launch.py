@@ -97,6 +97,13 @@ def _env(domain_id):
     return env
 
 
+def _tail(path, n=15):
+    try:
+        return '\n'.join(Path(path).read_text(encoding='utf-8').splitlines()[-n:])
+    except OSError:
+        return ''
+
+
 def _stop(proc, timeout):
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
@@ -155,11 +162,19 @@ def run_node_set(out_dir, duration=3.0, road=DEFAULT_ROAD, vehicle='city_car',
                  f'__ns:=/{namespace}', '--params-file', str(param_file)],
                 env=env, stdout=log, stderr=subprocess.STDOUT)
             log.close()
-        try:
-            procs['plant'].wait(limit)
-        except subprocess.TimeoutExpired:
-            raise TimeoutError(f'node set did not finish within {limit:.0f} s; logs in {out}') \
-                from None
+        end = time.monotonic() + limit
+        while procs['plant'].poll() is None:
+            for name, proc in procs.items():
+                if name != 'plant' and proc.poll() is not None:
+                    raise RuntimeError(f'{name} exited early with code {proc.returncode}:\n'
+                                       + _tail(out / f'{name}.log'))
+            if time.monotonic() > end:
+                raise TimeoutError(f'node set did not finish within {limit:.0f} s; logs in '
+                                   f'{out}')
+            time.sleep(0.2)
+        if procs['plant'].returncode != 0:
+            raise RuntimeError(f'plant failed with code {procs["plant"].returncode}:\n'
+                               + _tail(out / 'plant.log'))
     finally:
         # Stop the loop first, the recorder last so that it drains everything published.
         codes = {name: _stop(procs[name], 20.0) for name in STOP_ORDER if name in procs}

@@ -26,7 +26,7 @@ import yaml
 
 from mr_suspension.core import road as rd
 from mr_suspension.core.stepper import PlantStepper
-from mr_suspension.nodes import common, contract as c
+from mr_suspension.nodes import cdr, common, contract as c
 
 NODE = 'plant'
 
@@ -81,7 +81,7 @@ class PlantNode(Node):
         if self.lockstep and self.publish_clock:
             self.pub_clock = self.create_publisher(Clock, c.CLOCK, common.qos(c.CLOCK, ls))
         self.sub_force = self.create_subscription(JointState, c.DAMPER_FORCE, self._on_force,
-                                                  common.qos(c.DAMPER_FORCE, self.lockstep))
+                                                  common.qos(c.DAMPER_FORCE, ls), raw=True)
         self._init_messages()
         # Newest damper force: (sample index, force, tangent, stroke rate it was evaluated at).
         self.force = None
@@ -100,6 +100,8 @@ class PlantNode(Node):
         self.ready_since = None
         self.waiting_since = None
         self.start_timer = self.create_timer(0.02, self._try_start)
+        self.progress = (-1, time.monotonic())
+        self.watchdog = self.create_timer(1.0, self._check_progress)
         self.step_timer = None
         self.get_logger().info(
             f'plant: {self.road.name}, {self.road.n_steps} steps of {self.config.dt * 1e3:g} ms, '
@@ -125,11 +127,20 @@ class PlantNode(Node):
     # -- start-up --------------------------------------------------------------------------
 
     def _ready(self):
-        return (self.pub_imu_s.get_subscription_count() >= self.expect_subscribers
+        """Check that every contract link is discovered (own endpoints: matched)."""
+        if not (self.pub_imu_s.get_subscription_count() >= self.expect_subscribers
                 and self.pub_truth.get_subscription_count() >= 1
-                and self.sub_force.get_publisher_count() >= 1
-                and self.count_publishers(c.CURRENT_COMMAND) >= 1
-                and self.count_subscribers(c.CURRENT_COMMAND) >= 1)
+                and self.sub_force.get_publisher_count() >= 1):
+            return False
+        recorders = max(self.expect_subscribers - 1, 0)
+        for name, topic in c.TOPICS.items():
+            if name == c.CLOCK:
+                continue
+            nodes = [s for s in topic.subscribers if s != 'recorder']
+            if self.count_publishers(name) < 1 or \
+                    self.count_subscribers(name) < len(nodes) + recorders:
+                return False
+        return True
 
     def _try_start(self):
         if self.started:
@@ -151,6 +162,22 @@ class PlantNode(Node):
             self.step_timer = self.create_timer(self.config.dt, self._on_tick)
         self.get_logger().info('plant: node set connected, starting')
         self._publish_sample()
+
+    def _check_progress(self):
+        now = time.monotonic()
+        if not self.started or self.plant.done:
+            if not self.started and now - self.progress[1] > 10.0:
+                self.get_logger().warning(
+                    'plant: still waiting for the node set (controller, actuator'
+                    + (', recorder' if self.expect_subscribers > 1 else '') + ')',
+                    throttle_duration_sec=10.0)
+            return
+        if self.plant.k != self.progress[0]:
+            self.progress = (self.plant.k, now)
+        elif now - self.progress[1] > 5.0:
+            self.get_logger().error(f'plant: no damper force for sample {self.plant.k} for '
+                                    f'{now - self.progress[1]:.0f} s; is the actuator running?',
+                                    throttle_duration_sec=10.0)
 
     # -- publishing ------------------------------------------------------------------------
 
@@ -190,11 +217,12 @@ class PlantNode(Node):
 
     # -- stepping --------------------------------------------------------------------------
 
-    def _on_force(self, msg):
+    def _on_force(self, raw):
         now = time.monotonic()
-        k = int(round((common.stamp_to_ns(msg.header.stamp) - self.t0_ns) / self.dt_ns))
-        if len(msg.effort) < 2 or len(msg.velocity) < 1 or not common.finite(
-                msg.effort[0], msg.effort[1], msg.velocity[0]):
+        stamp, _, velocity, effort = cdr.joint_state(raw)
+        k = int(round((stamp - self.t0_ns) / self.dt_ns))
+        if len(effort) < 2 or len(velocity) < 1 or not common.finite(
+                effort[0], effort[1], velocity[0]):
             self.get_logger().error('plant: invalid damper/force message ignored',
                                     throttle_duration_sec=1.0)
             return
@@ -204,7 +232,7 @@ class PlantNode(Node):
         self.latency.append(now - self.pub_wall[k])
         if self.force is not None and k < self.force[0]:
             return
-        self.force = (k, float(msg.effort[0]), float(msg.effort[1]), float(msg.velocity[0]))
+        self.force = (k, effort[0], effort[1], velocity[0])
         if k == self.plant.k and not self.plant.done:
             if self.lockstep:
                 self._advance()
