@@ -9,7 +9,7 @@ is the law's float64 parameter array and ``s`` its (possibly empty) state array,
 place. ``dF/dv`` is the local tangent damping, used by the plant's linearly implicit step.
 """
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 import math
 
 from numba import njit
@@ -17,7 +17,7 @@ import numpy as np
 
 from mr_suspension.core import extended
 from mr_suspension.core.fastmath import fast_tanh
-from mr_suspension.core.validation import build, check_finite, check_nonneg, check_positive
+from mr_suspension.core.validation import check_finite, check_nonneg, check_positive, ParamsMixin
 
 LAW_LINEAR = 0
 LAW_BINGHAM = 1
@@ -30,25 +30,8 @@ LAW_EXTENDED = 6
 MAXVEL_WINDOW_MAX = 4096
 
 
-class _Params:
-    """Mixin: array conversion and dict round trip for the frozen parameter dataclasses."""
-
-    def to_array(self):
-        """Return the parameters as a float64 array in field order (the jitted law's ``p``)."""
-        return np.array([float(getattr(self, f.name)) for f in fields(self)], dtype=np.float64)
-
-    def to_dict(self):
-        """Return the parameters as a plain dict (YAML/JSON friendly)."""
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data):
-        """Build from a mapping; unknown keys raise ValueError."""
-        return build(cls, dict(data))
-
-
 @dataclass(frozen=True)
-class LinearDamperParams(_Params):
+class LinearDamperParams(ParamsMixin):
     """Linear viscous damper ``F = c v + F0`` (passive reference, seed 001 eq. 2)."""
 
     c: float = 1000.0
@@ -64,7 +47,7 @@ class LinearDamperParams(_Params):
 
 
 @dataclass(frozen=True)
-class BinghamParams(_Params):
+class BinghamParams(ParamsMixin):
     """Smooth Bingham model ``F = F0 + c(i) v + Fc(i) tanh(v / v_y)`` (seed 003, eq. 5.2).
 
     ``c(i) = c0 + c1 i`` and ``Fc(i) = fc0 + fc1 i``; ``v_y`` smooths ``sgn`` (v_y -> 0 gives
@@ -90,7 +73,7 @@ class BinghamParams(_Params):
 
 
 @dataclass(frozen=True)
-class TanhParams(_Params):
+class TanhParams(ParamsMixin):
     """Seed 002 current-driven model ``F = y_MR I tanh(c_MR v + k_MR x) + c_p v + k_p x``."""
 
     y_mr: float = 900.0
@@ -110,7 +93,7 @@ class TanhParams(_Params):
 
 
 @dataclass(frozen=True)
-class TanhMaxVelParams(_Params):
+class TanhMaxVelParams(ParamsMixin):
     """Max-deflection-velocity variant (seed 002).
 
     ``F = I v c_MR / (max_{i-k..i} |v| + eps) + c_p v + k_p x``: the post-yield damping varies
@@ -134,7 +117,7 @@ class TanhMaxVelParams(_Params):
 
 
 @dataclass(frozen=True)
-class MechanicalParams(_Params):
+class MechanicalParams(ParamsMixin):
     """Seed 000 mechanical model (Fig. 7): damping d(xi_dot, i) in series with k1, parallel k2.
 
     ``F = k1 (x - xi) + F_acc(x)`` with ``k1 (x - xi) = d(xi_dot, i)``,
@@ -165,7 +148,7 @@ class MechanicalParams(_Params):
 
 
 @dataclass(frozen=True)
-class BoucWenParams(_Params):
+class BoucWenParams(ParamsMixin):
     """Modified Bouc-Wen model (Spencer et al. 1997), SI units, current ``i`` as the command.
 
     ``F = c1 y_dot + k1 (x - x0)``,

@@ -6,13 +6,13 @@ fall time constants -> dead time -> coil current -> fluid magnetisation lag (fas
 slow on falling current) -> field current that the force law sees.
 """
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 import math
 
 from numba import njit
 import numpy as np
 
-from mr_suspension.core.validation import build, check_nonneg, check_positive
+from mr_suspension.core.validation import check_nonneg, check_positive, ParamsMixin
 
 DEAD_TIME_BUFFER = 512
 # Driver state layout: [lag output, fluid output, ring head, ring buffer (DEAD_TIME_BUFFER)].
@@ -21,7 +21,7 @@ DRIVER_STATE_SIZE = DRV_BUF + DEAD_TIME_BUFFER
 
 
 @dataclass(frozen=True)
-class DriverParams:
+class DriverParams(ParamsMixin):
     """Wonder Box and fluid parameters (SI). Seed 000 §5.2–5.3 and Tables 4–5.
 
     Static map: ``i = 0`` for ``V <= v_dead``, else ``i = i_max s / (1 + s^knee)^(1/knee)`` with
@@ -52,19 +52,6 @@ class DriverParams:
             raise ValueError('DriverParams: v_max must exceed v_dead')
         if self.dead_time > 0.25:
             raise ValueError('DriverParams: dead_time must be <= 0.25 s')
-
-    def to_array(self):
-        """Return the float64 parameter array used by the jitted step."""
-        return np.array([float(getattr(self, f.name)) for f in fields(self)], dtype=np.float64)
-
-    def to_dict(self):
-        """Return a plain dict."""
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data):
-        """Build from a mapping; unknown keys raise ValueError."""
-        return build(cls, dict(data))
 
     @property
     def i_range(self):

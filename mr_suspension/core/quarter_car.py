@@ -11,12 +11,12 @@ Seed 003, eqs. (4.3)-(4.4) and seed 001, eqs. (2)-(3), written about the static 
 stiff springs beyond the stroke limits.
 """
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 
 from numba import njit
 import numpy as np
 
-from mr_suspension.core.validation import build, check_finite, check_nonneg, check_positive
+from mr_suspension.core.validation import check_finite, check_nonneg, check_positive, ParamsMixin
 
 # Parameter array layout (QuarterCarParams.to_array + the damper static force).
 CAR_MS, CAR_MU, CAR_KS, CAR_KT, CAR_CT, CAR_XMAX, CAR_XMIN, CAR_KSTOP, CAR_G, CAR_FD0 = range(10)
@@ -25,7 +25,7 @@ ZS, ZU, VS, VU = range(4)
 
 
 @dataclass(frozen=True)
-class QuarterCarParams:
+class QuarterCarParams(ParamsMixin):
     """Quarter-car parameters (SI). ``stroke_max``/``stroke_min``: rebound/bump stop positions."""
 
     m_s: float = 241.5
@@ -48,17 +48,7 @@ class QuarterCarParams:
 
     def to_array(self, f_d0=0.0):
         """Return the jitted plant's parameter array; ``f_d0`` is the damper's static force."""
-        vals = [float(getattr(self, f.name)) for f in fields(self)]
-        return np.array(vals + [float(f_d0)], dtype=np.float64)
-
-    def to_dict(self):
-        """Return a plain dict."""
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data):
-        """Build from a mapping; unknown keys raise ValueError."""
-        return build(cls, dict(data))
+        return np.append(ParamsMixin.to_array(self), float(f_d0))
 
     @property
     def static_tyre_load(self):

@@ -1,6 +1,9 @@
-"""Small validation helpers shared by the parameter dataclasses."""
+"""Validation helpers and the common mixin of the frozen parameter dataclasses."""
 
+from dataclasses import asdict, fields
 import math
+
+import numpy as np
 
 
 def check_finite(owner, **values):
@@ -40,3 +43,20 @@ def build(cls, data, owner=None):
     if unknown:
         raise ValueError(f'{owner}: unknown parameter(s) {unknown}; known: {sorted(fields)}')
     return cls(**data)
+
+
+class ParamsMixin:
+    """Array conversion and dict round trip for the frozen parameter dataclasses."""
+
+    def to_array(self):
+        """Return the parameters as a float64 array in field order (the jitted ``p``)."""
+        return np.array([float(getattr(self, f.name)) for f in fields(self)], dtype=np.float64)
+
+    def to_dict(self):
+        """Return the parameters as a plain dict (YAML/JSON friendly)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data):
+        """Build from a mapping; unknown keys raise ValueError."""
+        return build(cls, dict(data))
