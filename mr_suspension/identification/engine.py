@@ -261,6 +261,9 @@ class FitResult:
         self.theta = best.theta
         self.sse = best.sse
         k = ds.n_folds
+        # States of force-dependent models were computed with the theta of their
+        # generation; only the final generation's regressors match the simulation.
+        visited = [r for r in visited if getattr(r, 'gen', 0) == getattr(best, 'gen', 0)]
         self.test = np.empty(k)
         self.eta_k = []
         self.theta_k = []
@@ -322,7 +325,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
     force_dep = any(e in FORCE_DEPENDENT for e in effects)
     visited = []
     cache = {}
-    state = {'best': None, 'x': None}
+    state = {'best': None, 'x': None, 'gen': 0}
 
     def ev(e):
         key = tuple(sorted((k, round(float(v), 12)) for k, v in e.items()))
@@ -330,6 +333,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
             return cache[key]
         x = design(ds, effects, e, theta)
         r = CVResult(ds, x, e)
+        r.gen = state['gen']
         visited.append(r)
         cache[key] = r
         if state['best'] is None or r.sse < state['best'].sse:
@@ -410,6 +414,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
             e = dict(state['best'].eta)
             theta[:] = state['best'].theta
             state['best'] = None
+            state['gen'] += 1
             ev(e)
 
     def cur_eta():
