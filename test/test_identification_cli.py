@@ -79,3 +79,17 @@ def test_doe_help_and_errors(tmp_path, capsys):
     assert cli.main(['diagnose', str(bad), '--out', str(tmp_path / 'o')]) == 2
     assert 'current_command' in capsys.readouterr().err
     assert cli.main(['predict', '--model', str(bad), str(bad), '--out', 'x.csv']) == 2
+
+
+def test_force_in_kn_read_as_n_is_flagged(tmp_path, capsys):
+    rec, _ = synthetic.make_record((), seed=8, duration=6.0)
+    csv = tmp_path / 'kn.csv'
+    np.savetxt(csv, np.column_stack([rec.time, rec.displacement, rec.velocity,
+                                     rec.force * 1e-3, rec.i_in]), delimiter=',',
+               header='time,displacement,velocity,force,current_command', comments='')
+    out = tmp_path / 'o'
+    assert cli.main(['diagnose', str(csv), '--out', str(out), '--no-plots']) == 0
+    assert 'kN' in capsys.readouterr().err
+    rep = json.loads((out / 'report.json').read_text())
+    assert any('kN' in w for w in rep['input_warnings'])
+    assert rep['verdict'] == 'none'

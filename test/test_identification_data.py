@@ -171,3 +171,41 @@ def test_driver_identified_from_measured_current():
     assert drv['tau_rise'] == pytest.approx(0.007, rel=0.2)
     assert drv['tau_fall'] == pytest.approx(0.004, rel=0.2)
     assert diagnose.identify_driver([rec]) is None
+
+
+def test_rosbag2_from_node_set_topics(tmp_path):
+    """Read stroke/force JointState topics as the node set records them; ignore truth."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import get_typestore, Stores
+
+    ts = get_typestore(Stores.LATEST)
+    js = ts.types['sensor_msgs/msg/JointState']
+    hdr = ts.types['std_msgs/msg/Header']
+    stamp_t = ts.types['builtin_interfaces/msg/Time']
+    f64 = ts.types['std_msgs/msg/Float64']
+    t, x, v, f, i = _table(1200)
+    bag = tmp_path / 'nodes'
+    with Writer(bag, version=9) as w:
+        cs = {n: w.add_connection(n, ty.__msgtype__, typestore=ts) for n, ty in (
+            ('/mr/stroke', js), ('/mr/damper/force', js), ('/mr/current_command', f64),
+            ('/mr/coil_current', f64), ('/mr/truth/tyre_force', f64))}
+        for k in range(t.size):
+            ns = int(5e9 + t[k] * 1e9)
+            h = hdr(stamp=stamp_t(sec=ns // 10 ** 9, nanosec=ns % 10 ** 9), frame_id='s')
+            msgs = (('/mr/stroke', js(header=h, name=['s'], position=np.array([x[k]]),
+                                      velocity=np.array([v[k]]), effort=np.array([])), js),
+                    ('/mr/damper/force', js(header=h, name=['d', 't'],
+                                            position=np.array([x[k], 0.0]),
+                                            velocity=np.array([v[k], 0.0]),
+                                            effort=np.array([f[k], 1.0])), js),
+                    ('/mr/current_command', f64(data=float(i[k])), f64),
+                    ('/mr/coil_current', f64(data=float(i[k])), f64),
+                    ('/mr/truth/tyre_force', f64(data=1e6), f64))
+            for name, msg, ty in msgs:
+                w.write(cs[name], ns, ts.serialize_cdr(msg, ty.__msgtype__))
+    (rec,) = dataio.load_records([bag])
+    assert rec.n == t.size
+    np.testing.assert_allclose(rec.force, f, atol=1e-6)
+    np.testing.assert_allclose(rec.displacement, x, atol=1e-12)
+    np.testing.assert_allclose(rec.velocity, v, atol=1e-9)
+    assert rec.velocity_source == 'measured' and rec.input_kind == 'current'

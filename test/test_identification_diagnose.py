@@ -86,3 +86,19 @@ def test_single_frequency_hysteresis_vs_series_is_ambiguous_or_right():
     else:
         assert rep['verdict'] == 'named'
         assert rep['causes'][0]['effect'] == 'series_stiffness'
+
+
+def test_constant_current_record_is_handled():
+    """Constant current: the current dependence is unidentifiable; no crash, no guess."""
+    from mr_suspension.identification.data import build_record
+
+    rec, truth = synthetic.make_record(('current_delay',), seed=6, duration=8.0)
+    cols = {'time': rec.time, 'displacement': rec.displacement, 'velocity': rec.velocity,
+            'current_command': np.full(rec.n, 0.5), 'force': rec.force}
+    flat = build_record('flat', cols)
+    res = diagnose.run([flat])
+    rep, _ = report.build(res, [flat])
+    assert {'current_delay', 'current_lag', 'current_lag_asymmetric',
+            'current_saturation'} <= set(rep['untestable'])
+    assert 'current' in rep['evidence']['excitation']
+    assert np.isfinite(rep['baseline']['heldout_nrmse'])

@@ -114,3 +114,20 @@ def test_each_effect_changes_force_and_simulator_hook(tmp_path):
     assert params == base and dyn['tau_fall'] == 0.02
     # The lead's dispatcher builds the extended law from the damper block.
     assert damper.damper_from_dict(json.loads(path.read_text())['damper']) == base
+
+
+def test_fitted_driver_reproduces_current_dynamics():
+    """The lead's driver chain with fitted_driver gives the fit's field current."""
+    from mr_suspension.core import driver
+
+    dyn = {'dead_time': 0.004, 'tau_rise': 0.003, 'tau_fall': 0.02}
+    model = model_io.model_dict(ExtendedDamperParams(), dyn, [], 'current_command')
+    dp = model_io.fitted_driver(model)
+    assert (dp.tau_rise, dp.tau_fall, dp.dead_time) == (0.003, 0.02, 0.004)
+    assert dp.fluid_tau_rise == 0.0 and dp.fluid_tau_fall == 0.0
+    x, v, i, dt = _signals(2000)
+    q = driver.prepare(dp, dt)
+    s = driver.driver_state(current=i[0])
+    field = np.array([driver.driver_step(q, s, float(u))[1] for u in i])
+    mine = engine.field_current(i, dt, 0.004, 0.003, 0.02)
+    np.testing.assert_allclose(field, mine, atol=1e-6)

@@ -14,7 +14,7 @@ from mr_suspension.nodes import common, contract as c
 from mr_suspension.nodes.actuator import ActuatorNode
 from mr_suspension.nodes.controller import ControllerNode
 from mr_suspension.nodes.launch import corner_config
-from mr_suspension.nodes.plant import PlantNode
+from mr_suspension.nodes.plant import parse_road, PlantNode
 from mr_suspension.nodes.testing import add, params, ros_context
 
 
@@ -198,3 +198,12 @@ def test_controller_with_unsynchronised_sensor_stamps(trigger):
             common.spin_until(ex, lambda: False, 0.002, step=0.002)
         assert ctl.fallback == (trigger == 'sample')
         assert h.got[c.CURRENT_COMMAND][-1].data == (1.25 if trigger == 'sample' else 0.0)
+
+
+def test_plant_road_parameter_forms():
+    assert parse_road('bump') == {'type': 'bump'}
+    assert parse_road('iso8608:road_class=C,speed=20') == {
+        'type': 'iso8608', 'road_class': 'C', 'speed': 20}
+    assert parse_road('{type: step, height: 0.05}') == {'type': 'step', 'height': 0.05}
+    with pytest.raises(ValueError):
+        parse_road('step:height')

@@ -97,8 +97,13 @@ def cmd_diagnose(args):
     if bad:
         raise dataio.DataError(f'unknown effect(s) {bad}; known: {", ".join(engine.EFFECTS)}')
     t0 = time.time()
-    records = dataio.load_records(args.data, opts)
-    validate = dataio.load_records(args.validate, opts) if args.validate else []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        records = dataio.load_records(args.data, opts)
+        validate = dataio.load_records(args.validate, opts) if args.validate else []
+    notes = [str(w.message) for w in caught]
+    for msg in notes:
+        print(f'warning: {msg}', file=sys.stderr)
     bar = None
     if not args.quiet:
         from tqdm import tqdm
@@ -114,7 +119,7 @@ def cmd_diagnose(args):
     if bar is not None:
         bar.close()
     rep, _ = report.write(res, records, args.out, validate, time.time() - t0,
-                          make_plots=not args.no_plots)
+                          make_plots=not args.no_plots, input_warnings=notes)
     if not args.quiet:
         causes = ', '.join(c['effect'] for c in rep['causes']) or 'none'
         print(f'verdict: {rep["verdict"]}; causes: {causes}; held-out NRMSE baseline '
@@ -144,7 +149,12 @@ def cmd_predict(args):
     opts = _load_options(args)
     records = _load_for_predict(args.input, opts)
     out = Path(args.out)
+    fitted_with = model.get('input', {}).get('signal')
     for k, r in enumerate(records):
+        if fitted_with and r.input_kind != fitted_with:
+            print(f'warning: model fitted with {fitted_with} input, record {r.name} gives '
+                  f'{r.input_kind}; the prediction uses it as the same current',
+                  file=sys.stderr)
         f = model_io.predict(model, r)
         path = out if len(records) == 1 else out.with_name(f'{out.stem}_{k}{out.suffix}')
         _write_csv(path, r.time, f)

@@ -328,13 +328,32 @@ def load_mat(path, opts=None):
     return [build_record(path.name, _apply_units(cols, opts.units), opts)]
 
 
-def _msg_value(msg):
+def _msg_values(msg, quantity):
+    """Quantities carried by one message: ``std_msgs`` ``data`` or a ``JointState``."""
     if hasattr(msg, 'data'):
-        return float(np.asarray(msg.data, dtype=float).ravel()[0])
+        return {quantity: float(np.asarray(msg.data, dtype=float).ravel()[0])}
+    if hasattr(msg, 'effort') or hasattr(msg, 'position'):
+        pos = list(getattr(msg, 'position', []))
+        vel = list(getattr(msg, 'velocity', []))
+        eff = list(getattr(msg, 'effort', []))
+        out = {}
+        if quantity == 'force':
+            if eff:
+                out['force'] = float(eff[0])
+            if pos:
+                out['displacement_alt'] = float(pos[0])
+            if vel:
+                out['velocity_alt'] = float(vel[0])
+        else:
+            if pos:
+                out[quantity] = float(pos[0])
+            if vel and quantity == 'displacement':
+                out['velocity_alt'] = float(vel[0])
+        return out
     for name in getattr(msg, '__dataclass_fields__', {}):
         val = getattr(msg, name)
         if isinstance(val, (int, float)):
-            return float(val)
+            return {quantity: float(val)}
     raise DataError(f'cannot read a number from message type {type(msg).__name__}')
 
 
@@ -343,6 +362,8 @@ def _topic_quantity(topic, opts):
         if topic == src:
             return canon
     t = topic.lower()
+    if any(k in t for k in ('tyre', 'tire', 'truth', 'imu', 'clock')):
+        return None
     if 'command' in t or 'cmd' in t:
         return 'voltage_command' if 'volt' in t else 'current_command'
     for key, canon in (('force', 'force'), ('stroke_rate', 'velocity'), ('velocity', 'velocity'),
@@ -353,13 +374,25 @@ def _topic_quantity(topic, opts):
     return None
 
 
+def _stamp(msg, bag_ns):
+    header = getattr(msg, 'header', None)
+    if header is not None:
+        ns = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+        if ns > 0:
+            return ns * 1e-9
+    return bag_ns * 1e-9
+
+
 def load_bag(path, opts=None):
     """Load a rosbag2 (sqlite3 or mcap) recorded by the node set as one ``Record``.
 
-    Topics are matched by name (``stroke``/``displacement``, ``force``, ``command``,
-    ``current``, ``velocity``/``stroke_rate``, ``temperature``; or ``--columns
-    force=/my/topic``); the value is ``msg.data`` (std_msgs) or the first numeric field. All
-    signals are interpolated onto a uniform grid at the force topic's median period.
+    Topics are matched by name (``stroke``/``displacement``, ``damper/force``, ``command``,
+    ``coil_current``, ``velocity``/``stroke_rate``, ``temperature``; truth, tyre, IMU and clock
+    topics are ignored; or ``--columns force=/my/topic``). Values are ``msg.data``
+    (std_msgs) or, for ``JointState``, ``position[0]``/``velocity[0]`` and ``effort[0]`` on
+    the force topic (the actuator also reports stroke and rate there). Times are header
+    stamps when present, else bag stamps (sim time in lockstep). All signals are
+    interpolated onto a uniform grid at the force topic's median period (commands held).
     """
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import get_typestore, Stores
@@ -373,14 +406,24 @@ def load_bag(path, opts=None):
             raise DataError(f'{path}: no recognised topics in {topics}')
         for conn, stamp, raw in reader.messages(connections=conns):
             q = _topic_quantity(conn.topic, opts)
-            series.setdefault(q, ([], []))
-            series[q][0].append(stamp * 1e-9)
-            series[q][1].append(_msg_value(reader.deserialize(raw, conn.msgtype)))
+            msg = reader.deserialize(raw, conn.msgtype)
+            ts = _stamp(msg, stamp)
+            for key, val in _msg_values(msg, q).items():
+                series.setdefault(key, ([], []))
+                series[key][0].append(ts)
+                series[key][1].append(val)
+    for alt in ('displacement', 'velocity'):
+        if alt + '_alt' in series:
+            if alt not in series:
+                series[alt] = series[alt + '_alt']
+            del series[alt + '_alt']
     if 'force' not in series:
         raise DataError(f'{path}: no force topic; found quantities {sorted(series)}')
-    tf = np.array(series['force'][0])
+    tf = np.unique(np.array(series['force'][0]))
+    if tf.size < 2:
+        raise DataError(f'{path}: too few force messages')
     dt = float(np.median(np.diff(tf)))
-    t = tf[0] + dt * np.arange(int((tf[-1] - tf[0]) / dt) + 1)
+    t = tf[0] + dt * np.arange(int(round((tf[-1] - tf[0]) / dt)) + 1)
     cols = {'time': t}
     for q, (ts, vs) in series.items():
         ts = np.array(ts)

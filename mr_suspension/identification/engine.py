@@ -212,7 +212,7 @@ class CVResult:
     def __init__(self, ds, x, eta):
         if not np.all(np.isfinite(x)):
             # A diverged state (e.g. an absurd grid point): score it as infinitely bad.
-            k, p = ds.n_folds, x.shape[1]
+            k, p = ds.n_folds, (x.shape[1] if x.shape[1] > 1 else 7)
             self.eta = dict(eta)
             self.theta = np.zeros(p)
             self.sse = np.inf
@@ -331,7 +331,10 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
         key = tuple(sorted((k, round(float(v), 12)) for k, v in e.items()))
         if key in cache and not force_dep:
             return cache[key]
-        x = design(ds, effects, e, theta)
+        try:
+            x = design(ds, effects, e, theta)
+        except ValueError:  # a search step outside the parameter domain
+            x = np.full((1, 1), np.nan)
         r = CVResult(ds, x, e)
         r.gen = state['gen']
         visited.append(r)
@@ -362,6 +365,8 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
             if j == 0 or j == len(pts) - 1:
                 return
             (s0, a), (s1, b), (s2, c) = pts[j - 1], pts[j], pts[j + 1]
+            if not np.isfinite([s0, s1, s2]).all():
+                return
             use_log = not lin and a > 0
             if use_log:
                 la, lb, lc = math.log(a), math.log(b), math.log(c)
@@ -373,6 +378,8 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
             lv = lb - 0.5 * ((lb - la) ** 2 * (s1 - s2) - (lb - lc) ** 2 * (s1 - s0)) / den
             lv = min(max(lv, la), lc)
             val = math.exp(lv) if use_log else lv
+            if not math.isfinite(val):
+                return
             if name == 'dead_time':
                 val = round(val / ds.dt_min) * ds.dt_min
             if any(abs(val - q) <= 1e-9 * max(1e-3, abs(q)) for q in vals):
@@ -463,6 +470,20 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
             refine(name, res)
             update_theta()
     polish([n for n in names if n in _new_names(new) or n == 'dead_time'] + ['v_y'])
+    lags = [n for n in ('tau_lag', 'tau_rise', 'tau_fall') if n in names]
+    if 'dead_time' in names and lags:
+        # Dead time and lag trade against each other at a constant mean delay: scan along
+        # that valley (shift d by s samples, every tau by -s samples).
+        e0 = dict(state['best'].eta)
+        for sh in (-4, -3, -2, -1, 1, 2, 3, 4):
+            e = dict(e0)
+            e['dead_time'] = e0['dead_time'] + sh * ds.dt_min
+            if e['dead_time'] < 0:
+                continue
+            for n in lags:
+                e[n] = max(0.0, e0[n] - sh * ds.dt_min)
+            ev(e)
+        polish(['dead_time'] + lags)
     cont = [n for n in names + ['v_y'] if n != 'dead_time'
             and (n == 'rho' or state['best'].eta[n] > 0)]
     if joint and len(cont) >= 2:

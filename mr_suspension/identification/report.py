@@ -99,6 +99,9 @@ def build(res, records, validate=(), elapsed=None):
                          f'{diagnose.CORR_AMBIG}, and the swap of the two in the final model '
                          'is not rejected',
             'nrmse': 'RMS error / std of the measured force',
+            'rates': f'selection on records decimated to about {diagnose.SEARCH_RATE:g} Hz '
+                     '(per-cause single-effect figures come from it); baseline and '
+                     'extended refitted and scored at the full rate',
         },
         'evidence': {'selection_steps': res['steps'], 'swap_tests': res['swaps'],
                      'excitation': res['notes']},
@@ -309,6 +312,9 @@ def markdown(report, figures):
                   f'Baseline NRMSE {v["baseline_nrmse"]:.4f}, extended {v["extended_nrmse"]:.4f}'
                   f', gain {v["gain"]:.1%} on {len(v["records"])} record(s) never used in the '
                   'fit.']
+    if report.get('input_warnings'):
+        lines += ['', '## Input warnings', '']
+        lines += [f'- {w}' for w in report['input_warnings']]
     lines += ['', '## Method', '']
     lines += [f'- {k}: {v}' for k, v in report['method'].items()]
     lines += ['', '## Figures', '']
@@ -316,12 +322,14 @@ def markdown(report, figures):
     return '\n'.join(lines) + '\n'
 
 
-def write(res, records, out_dir, validate=(), elapsed=None, make_plots=True):
+def write(res, records, out_dir, validate=(), elapsed=None, make_plots=True,
+          input_warnings=()):
     """Write report.json, report.md, model.json and the figures into ``out_dir``."""
     t0 = time.time()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     report, model = build(res, records, validate, elapsed)
+    report['input_warnings'] = list(input_warnings)
     figures = plots(res, records, out_dir, validate) if make_plots else []
     report['figures'] = figures
     (out_dir / 'report.json').write_text(json.dumps(report, indent=2, default=_jsonable) + '\n')

@@ -69,8 +69,7 @@ TOPICS = {t.name: t for t in (
     Topic(TRUTH_STATE, JOINT_STATE, 1000, _R, DEPTH, 'm (position), m/s (velocity)',
           FRAME_WORLD, 'plant', ('actuator', 'recorder')),
     Topic(TRUTH_TYRE_FORCE, FLOAT64, 1000, _R, DEPTH, 'N', '', 'plant', ('recorder',)),
-    Topic(CLOCK, CLOCK_TYPE, 1000, _R, DEPTH, 's', '', 'plant',
-          ('controller', 'actuator', 'recorder')),
+    Topic(CLOCK, CLOCK_TYPE, 1000, _R, DEPTH, 's', '', 'plant', ('recorder',)),
 )}
 
 

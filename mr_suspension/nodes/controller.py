@@ -42,8 +42,8 @@ class ControllerNode(Node):
                          **kwargs)
         d = common.node_defaults(NODE)
         self.config = common.declare_corner(self, d)
-        self.lockstep = common.declare(self, d, 'lockstep', 'Run once per sensor sample '
-                                       '(lock-step) instead of on a wall timer')
+        self.lockstep = common.declare(self, d, 'lockstep', 'Lock-step: run once per sensor '
+                                       'sample after the coil current of the step before')
         self.gravity = common.declare(self, d, 'gravity', 'Gravity removed from the '
                                       'accelerometers [m/s^2]', 0.0, 20.0)
         self.sensor_timeout = common.declare(self, d, 'sensor_timeout', 'Sensors older than '

@@ -132,15 +132,14 @@ def run_node_set(out_dir, duration=3.0, road=DEFAULT_ROAD, vehicle='city_car',
         raise FileExistsError(f'{bag} exists; choose a new output directory')
     road = road if isinstance(road, str) else yaml.safe_dump(dict(road), default_flow_style=True)
     common = {'vehicle': vehicle, 'damper': damper, 'driver': driver, 'controller': controller,
-              'rate': float(rate), 'lockstep': bool(lockstep), 'use_sim_time': bool(lockstep)}
+              'rate': float(rate), 'lockstep': bool(lockstep)}
     nodes = [n for n in NODE_ORDER if record or n != 'recorder']
     params = {
         'plant': dict(common, road=road, duration=float(duration), exit_at_end=True,
-                      use_sim_time=False, expect_subscribers=2 if record else 1),
+                      expect_subscribers=2 if record else 1),
         'controller': dict(common),
         'actuator': dict(common),
-        'recorder': {'output': str(bag), 'storage': storage, 'use_sim_time': bool(lockstep),
-                     'lockstep': bool(lockstep)},
+        'recorder': {'output': str(bag), 'storage': storage, 'lockstep': bool(lockstep)},
     }
     for name in nodes:
         params[name]['stats_file'] = str(out / f'stats_{name}.json')

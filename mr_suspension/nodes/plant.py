@@ -31,6 +31,28 @@ from mr_suspension.nodes import cdr, common, contract as c
 NODE = 'plant'
 
 
+def parse_road(text):
+    """Road mapping from ``"bump"``, ``"iso8608:road_class=C,speed=20"`` or a YAML mapping.
+
+    The short form exists because ``-p road:={...}`` is read as a YAML mapping by rcl and
+    rejected; ``-p road:=bump:height=0.08`` needs no quoting.
+    """
+    text = str(text).strip()
+    if text.startswith('{'):
+        spec = yaml.safe_load(text)
+        if not isinstance(spec, dict):
+            raise ValueError(f'plant: road must be a mapping, got {text!r}')
+        return spec
+    kind, _, rest = text.partition(':')
+    spec = {'type': kind.strip()}
+    for item in filter(None, (s.strip() for s in rest.split(','))):
+        key, eq, value = item.partition('=')
+        if not eq:
+            raise ValueError(f'plant: road option {item!r} is not key=value')
+        spec[key.strip()] = yaml.safe_load(value)
+    return spec
+
+
 class PlantNode(Node):
     """Quarter-car plant with road, sensors and ground truth."""
 
@@ -39,8 +61,9 @@ class PlantNode(Node):
                          **kwargs)
         d = common.node_defaults(NODE)
         self.config = common.declare_corner(self, d)
-        spec = common.declare(self, d, 'road', 'Road as a YAML mapping, e.g. "{type: bump, '
-                              'height: 0.05}" (types: step, bump, harmonic, sweep, iso8608)')
+        spec = common.declare(self, d, 'road', 'Road: "bump", "iso8608:road_class=C,speed=20" '
+                              'or a YAML mapping "{type: step, height: 0.05}" (types: step, '
+                              'bump, harmonic, sweep, iso8608)')
         duration = common.declare(self, d, 'duration', 'Run duration [s]', 0.01, 1.0e5)
         self.lockstep = common.declare(self, d, 'lockstep', 'Lock-step simulated time (true) '
                                        'or real time (false)')
@@ -61,10 +84,7 @@ class PlantNode(Node):
         self.gravity = self.config.car.g
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
                                                  'as JSON here on exit ("" = off)'))
-        road_spec = yaml.safe_load(spec) if isinstance(spec, str) else spec
-        if not isinstance(road_spec, dict):
-            raise ValueError(f'plant: parameter road must be a YAML mapping, got {spec!r}')
-        self.road = rd.from_spec(road_spec, duration=duration, dt=self.config.dt)
+        self.road = rd.from_spec(parse_road(spec), duration=duration, dt=self.config.dt)
         self.plant = PlantStepper(self.config, self.road)
         self.dt_ns = int(round(self.config.dt * 1e9))
         self.finished = threading.Event()
@@ -311,7 +331,8 @@ class PlantNode(Node):
         common.spin_until(executor, lambda: False, 0.2)
 
     def close(self):
-        """Write the statistics file."""
+        """Write the statistics file (forces counted after the drain)."""
+        self.stats.data['forces_received'] = self.n_forces
         self.stats.write()
 
 

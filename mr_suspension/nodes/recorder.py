@@ -2,15 +2,18 @@
 
 Uses ``rosbags`` (no rosbag2 install needed); the bag is a standard rosbag2 directory
 (``metadata.yaml`` plus the storage file) that ``ros2 bag``, ``rosbags`` and ``mcap`` read.
-Messages are taken serialized (raw CDR) and written as they are, time-stamped with the node's
-clock at reception (simulated time in lock-step runs with ``use_sim_time``), like
-``ros2 bag record``. On SIGINT/SIGTERM it keeps spinning until the queues are drained, then closes
-the bag (metadata written), so no received message is lost.
+Messages are taken serialized (raw CDR) and written as they are, time-stamped at reception like
+``ros2 bag record``: with the node's clock in real time; with simulated time in lock-step
+(``lockstep: true``, as ``ros2 bag record --use-sim-time``): the header stamp of stamped
+messages and ``/clock``, the newest of those for the others. On SIGINT/SIGTERM it keeps
+spinning until the queues are drained, then closes the bag (metadata written), so no received
+message is lost.
 """
 
 from datetime import datetime
 import importlib
 from pathlib import Path
+import struct
 import threading
 import time
 
@@ -21,6 +24,7 @@ from rosbags.typesys import get_typestore, Stores
 from mr_suspension.nodes import common, contract as c
 
 NODE = 'recorder'
+_STAMP = struct.Struct('<iI')
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
 
@@ -73,23 +77,37 @@ class RecorderNode(Node):
         self.closed = False
         store = typestore()
         self.counts = {}
+        self.sim_ns = None
         self.last_arrival = time.monotonic()
         for name in names:
             t = c.TOPICS[name]
             full = self.resolve_topic_name(name)
             conn = self.writer.add_connection(full, t.type, typestore=store)
             self.counts[full] = 0
-            self.create_subscription(message_class(t.type), name, self._writer_cb(conn, full),
+            self.create_subscription(message_class(t.type), name,
+                                     self._writer_cb(conn, full, t.type),
                                      common.qos(name, self.lockstep), raw=True)
         self.get_logger().info(f'recorder: writing {len(names)} topics to {self.path} '
                                f'({storage})')
 
-    def _writer_cb(self, conn, full):
+    def _writer_cb(self, conn, full, msgtype):
+        # Lock-step: Clock and stamped messages carry the simulated time at the same offset.
+        timed = self.lockstep and (full == c.CLOCK or msgtype in (c.IMU, c.JOINT_STATE))
+
         def callback(raw):
             with self.lock:
                 if self.closed:
                     return
-                self.writer.write(conn, self.get_clock().now().nanoseconds, raw)
+                if timed and raw[0:2] == b'\x00\x01':
+                    sec, nsec = _STAMP.unpack_from(raw, 4)
+                    stamp = sec * 1_000_000_000 + nsec
+                    if self.sim_ns is None or stamp > self.sim_ns:
+                        self.sim_ns = stamp
+                elif self.lockstep and self.sim_ns is not None:
+                    stamp = self.sim_ns
+                else:
+                    stamp = self.get_clock().now().nanoseconds
+                self.writer.write(conn, stamp, raw)
                 self.counts[full] += 1
                 if not self.stats.marked:
                     self.stats.mark()
