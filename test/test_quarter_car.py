@@ -7,6 +7,7 @@ import pytest
 
 from mr_suspension.core import config, road as rd
 from mr_suspension.core.damper import BinghamParams, LinearDamperParams
+from mr_suspension.core.frequency import sine_dwell_gains
 from mr_suspension.core.metrics import sine_gain
 from mr_suspension.core.quarter_car import QuarterCarParams
 from mr_suspension.core.simulator import CornerConfig, simulate
@@ -100,3 +101,16 @@ def test_bad_vehicle_parameters_raise():
         QuarterCarParams(k_t=float('nan'))
     with pytest.raises(ValueError, match='unknown parameter'):
         QuarterCarParams.from_dict({'m_s': 200.0, 'mass': 3.0})
+
+
+def test_sine_dwell_gains_match_the_linear_transfer_functions():
+    # Seed 001 Figs 7-10 quantities: body acceleration, body amplitude, working space, NTF.
+    car = config.load_vehicle('seed001_military')
+    cfg = CornerConfig(car=car, damper=LinearDamperParams(c=2000.0), driver=IDEAL)
+    freqs = np.array([0.7, 1.5, 4.0, 12.0])
+    gains = sine_dwell_gains(cfg, freqs, amplitude=1e-3)
+    analytic = car.transfer(freqs, 2000.0)
+    for key in ('acc', 'z_s', 'stroke', 'ntf'):
+        assert np.allclose(gains[key], np.abs(analytic[key]), rtol=0.01), key
+    with pytest.raises(ValueError):
+        sine_dwell_gains(cfg, [0.0, 1.0])

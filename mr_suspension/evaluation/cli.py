@@ -16,6 +16,7 @@ import yaml
 
 from mr_suspension.control.laws import LAW_IDS
 from mr_suspension.core import config as cfg
+from mr_suspension.core.frequency import sine_dwell_gains
 from mr_suspension.evaluation import plots, runner, scenarios as scn, studies, tables
 
 STUDIES = ('frequency', 'tradeoff', 'seeds', 'bounds', 'degradation', 'noise', 'estimator')
@@ -222,7 +223,7 @@ def run_evaluate(args, log=print):
             conf = runner.build_config(law, control_delay=args.delay,
                                        actuator_scale=args.actuator_scale, overrides=overrides,
                                        dt=args.dt, **common)
-            fam[law] = (freqs, plots.measured_response(conf, freqs, 0.005))
+            fam[law] = (freqs, sine_dwell_gains(conf, freqs, 0.005))
         if not args.no_plots:
             plots.response_figure(fam, out / 'frequency_response.png',
                                   'rig-style frequency responses, 5 mm road')

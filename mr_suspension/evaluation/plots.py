@@ -1,48 +1,18 @@
 """Evaluation figures (matplotlib, Agg backend): time histories, frequency responses, trade-off.
 
-Frequency responses of a (nonlinear, controlled) corner are measured like on a rig: a harmonic
-road of amplitude ``A`` at each frequency, the steady-state first-harmonic amplitude of the
-output over the last periods (:func:`~mr_suspension.core.metrics.sine_gain`) divided by ``A``
-(seed 001 Figs 7-10: body acceleration gain, body amplitude gain, working space gain and
-normalised tyre force gain).
+Frequency responses come from :func:`mr_suspension.core.frequency.sine_dwell_gains` (seed 001
+Figs 7-10: body acceleration, body amplitude, working space and normalised tyre force gains).
 """
-
-import math
 
 import matplotlib
 import numpy as np
 
-from mr_suspension.core import road as rd
-from mr_suspension.core.metrics import sine_gain
-from mr_suspension.core.simulator import simulate
+from mr_suspension.core.frequency import RESPONSES
 
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402, I100  (backend must be chosen first)
 
 MARKERS = ('o', 's', '^', 'v', 'D', 'P', 'X', '*', '<', '>', 'h', 'p')
-RESPONSES = (('acc', 'body acceleration gain [1/s^2]'), ('z_s', 'body amplitude gain [-]'),
-             ('stroke', 'working space gain [-]'), ('ntf', 'NTF gain [1/m]'))
-
-
-def measured_response(config, freqs, amplitude=0.01, periods=4, settle=3.0):
-    """Rig-style first-harmonic gains of a corner per unit road amplitude (module doc).
-
-    Returns a dict of arrays keyed like :data:`RESPONSES`.
-    """
-    if amplitude <= 0.0 or not math.isfinite(amplitude):
-        raise ValueError('measured_response: amplitude must be > 0')
-    out = {k: [] for k, _ in RESPONSES}
-    f_t0 = config.car.static_tyre_load
-    for f in freqs:
-        duration = settle + periods / f
-        road = rd.harmonic(amplitude, f, duration=duration, dt=config.dt)
-        res = simulate(config, road)
-        t = res.t
-        out['acc'].append(sine_gain(t, res.a_s, f, periods) / amplitude)
-        out['z_s'].append(sine_gain(t, res.z_s, f, periods) / amplitude)
-        out['stroke'].append(sine_gain(t, res.stroke, f, periods) / amplitude)
-        out['ntf'].append(sine_gain(t, res.f_t / f_t0, f, periods) / amplitude)
-    return {k: np.array(v) for k, v in out.items()}
 
 
 def response_figure(families, path, title=''):

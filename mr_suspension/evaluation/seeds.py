@@ -26,6 +26,7 @@ from mr_suspension.core import config as cfg
 from mr_suspension.core import damper as dmp
 from mr_suspension.core import road as rd
 from mr_suspension.core.extended import ExtendedDamperParams
+from mr_suspension.core.frequency import sine_dwell_gains
 from mr_suspension.core.metrics import ride_metrics
 from mr_suspension.core.simulator import CornerConfig, simulate
 from mr_suspension.evaluation import plots
@@ -139,7 +140,7 @@ def seed001_reproduction(out_dir=None, currents=SEED001_CURRENTS, n_sim=24, dt=1
     for i in currents:
         ctrl = ControllerParams(law='constant', current=float(i)).with_plant(car, damper, ideal)
         conf = CornerConfig(car=car, damper=damper, driver=ideal, controller=ctrl, dt=dt)
-        simulated[i] = (f_sim, plots.measured_response(conf, f_sim, SEED001_AMPLITUDE))
+        simulated[i] = (f_sim, sine_dwell_gains(conf, f_sim, SEED001_AMPLITUDE))
     if out_dir is not None:
         plots.response_figure({f'{i:g} A (C_eq {work_diagram_ceq(damper, i, 1.2):.0f})': v
                                for i, v in linear.items()},

@@ -54,8 +54,9 @@ def register(subparsers):
     p.add_argument('data', nargs='+', help='CSV/text files, .mat files, rosbag2 bags or '
                                            'directories of them')
     p.add_argument('--out', required=True, help='output directory')
-    p.add_argument('--validate', nargs='*', default=[], metavar='FILE',
-                   help='records never used in the fit, scored with the final models')
+    p.add_argument('--validate', action='append', default=[], metavar='FILE',
+                   help='record never used in the fit, scored with the final models '
+                        '(repeat for several)')
     p.add_argument('--effects', default=','.join(engine.EFFECTS),
                    help='comma-separated subset of the catalogue to test')
     p.add_argument('--folds', type=int, default=5, help='cross-validation folds (default 5)')

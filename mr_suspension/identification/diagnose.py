@@ -321,6 +321,31 @@ def run(records, effects=engine.EFFECTS, n_folds=5, progress=None, search_rate=S
                              start_theta=current.theta, new=())
         fits[tuple(chosen)] = current
         pool = _children(ds, chosen, candidates, current, tick)
+    # Swap test: a stage-wise tie is ambiguous only if the final set cannot tell either;
+    # if the runner-up does materially better in the final set, it replaces the pick.
+    ambiguous = []
+    swaps = {}
+    for pair in stage_amb:
+        inside = [e for e in pair if e in chosen]
+        if len(inside) != 1:
+            continue
+        a = inside[0]
+        b = pair[0] if pair[1] == a else pair[1]
+        alt_set = tuple(b if c == a else c for c in chosen)
+        if len(set(alt_set)) < len(alt_set) or not all(
+                _compatible([c for c in alt_set if c != x], x) for x in alt_set):
+            continue
+        cur = fits[tuple(chosen)]
+        alt = engine.fit(ds, alt_set, start_eta=cur.eta, start_theta=cur.theta, new=(b,))
+        tick('swap ' + '/'.join(pair))
+        pooled, t, _ = fold_stats(cur.test, alt.test)
+        swaps['/'.join(pair)] = {'gain_mse_over_swap': round(pooled, 4), 't': round(t, 2)}
+        if accepted(alt.test, cur.test):
+            chosen = list(alt_set)
+            fits[tuple(chosen)] = alt
+            swaps['/'.join(pair)]['swapped_to'] = b
+        elif not (pooled >= G_MIN and t >= T_MIN):
+            ambiguous.append(pair)
     # Backward check: drop any cause whose removal does not materially hurt.
     drop_loss = {}
     changed = True
@@ -346,25 +371,8 @@ def run(records, effects=engine.EFFECTS, n_folds=5, progress=None, search_rate=S
     if len(chosen) == 1:
         drop_loss[chosen[0]] = fold_stats(final.test, base.test)[0]
     order = sorted(chosen, key=lambda e: -drop_loss.get(e, 0.0))
-    # Swap test: a stage-wise tie is ambiguous only if the final model cannot tell either.
-    ambiguous = []
-    swaps = {}
-    for pair in stage_amb:
-        inside = [e for e in pair if e in chosen]
-        if len(inside) != 1:
-            continue
-        a = inside[0]
-        b = pair[0] if pair[1] == a else pair[1]
-        alt_set = tuple(b if c == a else c for c in chosen)
-        if len(set(alt_set)) < len(alt_set) or not all(
-                _compatible([c for c in alt_set if c != x], x) for x in alt_set):
-            continue
-        alt = engine.fit(ds, alt_set, start_eta=final.eta, start_theta=final.theta, new=(b,))
-        pooled, t, _ = fold_stats(final.test, alt.test)
-        swaps['/'.join(pair)] = {'gain_mse_over_swap': round(pooled, 4), 't': round(t, 2)}
-        if not (pooled >= G_MIN and t >= T_MIN):
-            ambiguous.append(pair)
     final_search = final
+    base_search_test = base.test
     ds_search = ds
     if search_rate:
         ds = engine.Dataset(full, n_folds=n_folds)
@@ -372,7 +380,8 @@ def run(records, effects=engine.EFFECTS, n_folds=5, progress=None, search_rate=S
         tick('baseline (full rate)')
         if chosen:
             final = engine.fit(ds, tuple(final.effects), start_eta=final.eta,
-                               start_theta=final.theta, new=(), sweeps=0, joint=JOINT_FEV)
+                               start_theta=final.theta, new=(), sweeps=1, joint=JOINT_FEV,
+                               local=(0.5, 1.0, 2.0))
             tick('extended (full rate)')
             # Backward check again at the full rate: a small cause found on decimated
             # records may only compensate the coarser discretisation.
@@ -424,6 +433,14 @@ def run(records, effects=engine.EFFECTS, n_folds=5, progress=None, search_rate=S
                     final = sub
         else:
             final = base
+    # Per-cause "alone" figures at the full rate: the effect's parameters from the final
+    # full-rate fit, linear parameters refitted per fold (one regressor evaluation each).
+    cause_test = {}
+    for e in order:
+        theta = np.zeros(7)
+        theta[:len(final.theta)] = final.theta
+        x = engine.design(ds, (e,), final.eta, theta)
+        cause_test[e] = engine.CVResult(ds, x, final.eta).test
     driver = identify_driver(full)
     base_exact = exact_heldout(ds, base)
     final_exact = exact_heldout(ds, final) if chosen else base_exact
@@ -435,4 +452,5 @@ def run(records, effects=engine.EFFECTS, n_folds=5, progress=None, search_rate=S
             'swaps': swaps, 'untestable': untestable, 'notes': notes,
             'steps': steps, 'verdict': verdict, 'base_exact': base_exact,
             'final_exact': final_exact, 'fits': fits, 'final_search': final_search,
-            'search_dt': [r.dt for r in records], 'driver': driver}
+            'search_dt': [r.dt for r in records], 'driver': driver,
+            'cause_test': cause_test, 'singles_base_test': base_search_test}

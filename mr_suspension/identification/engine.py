@@ -305,13 +305,14 @@ def _search_order(effects, new):
     return names
 
 
-def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, joint=0):
+def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, joint=0,
+        local=(0.6, 0.8, 1.0, 1.25, 1.6)):
     """Fit one model by coordinate search over ``eta`` with linear ``theta`` at every point.
 
     ``start_eta``/``start_theta`` warm-start from a parent model; ``new`` are the effects
     whose parameters are searched on their full grid first (the others only locally);
     ``joint`` > 0 ends with a Nelder-Mead polish of that many evaluations on all
-    continuous parameters together.
+    continuous parameters together; ``local`` are the factors of the local grids.
     """
     effects = tuple(effects)
     eta = dict(neutral_eta())
@@ -463,7 +464,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                 elif name == 'dead_time':
                     grid = np.maximum(0.0, c + ds.dt_min * np.array([-2, -1, 0, 1, 2]))
                 elif c > 0:
-                    grid = c * np.array([0.6, 0.8, 1.0, 1.25, 1.6])
+                    grid = c * np.asarray(local)
                 else:
                     grid = ds.grid(name)
             res = search(name, grid)

@@ -59,8 +59,12 @@ def build(res, records, validate=(), elapsed=None):
     causes = []
     for e in res['causes']:
         single = res['singles'].get(e)
-        single_n = _nrmse(single.heldout_mse, std) if single is not None else None
-        pooled, t, d = diagnose.fold_stats(single.test, base.test) if single else (0, 0, [])
+        single_n = None
+        if e in res.get('cause_test', {}):
+            ct = res['cause_test'][e]
+            single_n = _nrmse(float(ct.sum() / base.n_test.sum()), std)
+        pooled, t, d = (diagnose.fold_stats(single.test, res['singles_base_test'])
+                        if single else (0, 0, []))
         causes.append({
             'effect': e, 'description': EFFECT_TEXT[e],
             'parameters': final.effect_params(e),
@@ -100,8 +104,8 @@ def build(res, records, validate=(), elapsed=None):
                          'is not rejected',
             'nrmse': 'RMS error / std of the measured force',
             'rates': f'selection on records decimated to about {diagnose.SEARCH_RATE:g} Hz '
-                     '(per-cause single-effect figures come from it); baseline and '
-                     'extended refitted and scored at the full rate',
+                     '(the fold statistics in the evidence come from it); baseline, '
+                     'extended and per-cause NRMSE are scored at the full rate',
         },
         'evidence': {'selection_steps': res['steps'], 'swap_tests': res['swaps'],
                      'excitation': res['notes']},

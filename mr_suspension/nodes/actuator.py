@@ -53,6 +53,8 @@ class ActuatorNode(Node):
         self.command_timeout = common.declare(self, d, 'command_timeout', 'Real time: commands '
                                               'older than this give safe_current [s]',
                                               0.0005, 10.0)
+        recorders = common.declare(self, d, 'recorders', 'Lock-step: recorders to wait for on '
+                                   'damper/force and coil_current before the first output', 0, 10)
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
                                                  'as JSON here on exit ("" = off)'))
         if self.current_min > self.current_max:
@@ -68,6 +70,11 @@ class ActuatorNode(Node):
                                  common.qos(c.CURRENT_COMMAND, self.lockstep), raw=True)
         self.create_subscription(JointState, c.TRUTH_STATE, self._on_motion,
                                  common.qos(c.TRUTH_STATE, self.lockstep), raw=True)
+        self.gate = None
+        if self.lockstep:
+            self.gate = common.MatchGate(self, [(self.pub_force, 1 + recorders),
+                                                (self.pub_coil, 1 + recorders)],
+                                         self._run_lockstep)
         self.msg_force = JointState()
         self.msg_force.header.frame_id = c.FRAME_SUSPENSION
         self.msg_force.name = list(c.JOINTS_DAMPER)
@@ -139,6 +146,8 @@ class ActuatorNode(Node):
         return self.command if recent else self.safe_current
 
     def _run_lockstep(self):
+        if not self.gate.check():
+            return
         while self.commands and self.motions:
             self._apply(self.commands.popleft(), self.motions.popleft())
 

@@ -51,6 +51,33 @@ def qos(topic, lockstep=False):
                       durability=dur)
 
 
+class MatchGate:
+    """Lock-step start gate: open once every given publisher has its expected subscribers.
+
+    Publishing before a subscriber is matched would still be delivered (transient local) but
+    only after a middleware heartbeat, a stall of up to seconds; so the lock-step nodes hold
+    their first outputs until their own publishers are matched. ``retry`` is called every
+    10 ms while the gate is closed.
+    """
+
+    def __init__(self, node, pubs_and_counts, retry):
+        self.pairs = list(pubs_and_counts)
+        self.retry = retry
+        self.open = False
+        self.timer = node.create_timer(0.01, self._tick)
+
+    def check(self):
+        """Return True once open (and stop polling)."""
+        if not self.open and all(p.get_subscription_count() >= n for p, n in self.pairs):
+            self.open = True
+            self.timer.cancel()
+        return self.open
+
+    def _tick(self):
+        if self.check():
+            self.retry()
+
+
 def drain(executor, node, idle=0.1, limit=3.0):
     """Spin until ``node.last_input`` (monotonic time) is ``idle`` seconds old (max ``limit``)."""
     end = time.monotonic() + limit

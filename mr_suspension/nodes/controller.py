@@ -54,6 +54,8 @@ class ControllerNode(Node):
                                       'sample ("sample") or on a wall timer ("timer")')
         if self.trigger not in ('sample', 'timer'):
             raise ValueError(f'controller: trigger must be sample or timer, got {self.trigger!r}')
+        recorders = common.declare(self, d, 'recorders', 'Lock-step: recorders to wait for on '
+                                   'current_command before the first command', 0, 10)
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
                                                  'as JSON here on exit ("" = off)'))
         self.stepper = ControllerStepper(self.config)
@@ -86,7 +88,10 @@ class ControllerNode(Node):
         self.n_cmd_run = 0
         self.n_sensor = dict.fromkeys(self.latest, 0)
         self.timer = None
-        if not self.lockstep:
+        self.gate = None
+        if self.lockstep:
+            self.gate = common.MatchGate(self, [(self.pub_cmd, 1 + recorders)], self._run_samples)
+        else:
             self.timer = self.create_timer(self.config.dt, self._on_tick)
 
     # -- inputs ----------------------------------------------------------------------------
@@ -169,6 +174,8 @@ class ControllerNode(Node):
                           self.latest[c.STROKE], self.coil_latest, None)
 
     def _run_samples(self):
+        if self.gate is not None and not self.gate.check():
+            return
         while self.pending:
             key = min(self.pending)
             sample = self.pending[key]

@@ -137,8 +137,8 @@ def run_node_set(out_dir, duration=3.0, road=DEFAULT_ROAD, vehicle='city_car',
     params = {
         'plant': dict(common, road=road, duration=float(duration), exit_at_end=True,
                       expect_subscribers=2 if record else 1),
-        'controller': dict(common),
-        'actuator': dict(common),
+        'controller': dict(common, recorders=int(record)),
+        'actuator': dict(common, recorders=int(record)),
         'recorder': {'output': str(bag), 'storage': storage, 'lockstep': bool(lockstep)},
     }
     for name in nodes:
