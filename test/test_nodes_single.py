@@ -127,10 +127,10 @@ def test_controller_falls_back_on_stale_sensors():
         end = time.monotonic() + 0.3
         k = 0
         while time.monotonic() < end:
+            k = time.time_ns()  # real time: stamps are acquisition (wall) times
             for pub, msg in ((c.IMU_BODY, _imu(k, 9.81)), (c.IMU_WHEEL, _imu(k, 9.81)),
                              (c.STROKE, _joint(k, [0.0]))):
                 h.pubs[pub].publish(msg)
-            k += 1
             common.spin_until(ex, lambda: False, 0.002, step=0.002)
         assert not ctl.fallback
         assert h.got[c.CURRENT_COMMAND][-1].data == 0.0
@@ -142,11 +142,22 @@ def test_controller_falls_back_on_stale_sensors():
         assert common.spin_until(ex, lambda: len(h.got[c.CURRENT_COMMAND]) > n0 + 30, 5.0)
         assert h.got[c.CURRENT_COMMAND][-1].data == 1.25
         # A NaN sensor value also gives the fallback, not a crash.
+        k = time.time_ns()
         for pub, msg in ((c.IMU_BODY, _imu(k, math.nan)), (c.IMU_WHEEL, _imu(k, 9.81)),
                          (c.STROKE, _joint(k, [0.0]))):
             h.pubs[pub].publish(msg)
         common.spin_until(ex, lambda: False, 0.01)
         assert h.got[c.CURRENT_COMMAND][-1].data == 1.25
+        # Samples that are older than the timeout by their stamp (a queue worked off late)
+        # are dropped, not controlled on.
+        old = time.time_ns() - 1_000_000_000
+        for j in range(20):
+            for pub, msg in ((c.IMU_BODY, _imu(old + j, 9.81)), (c.IMU_WHEEL, _imu(old + j, 9.81)),
+                             (c.STROKE, _joint(old + j, [0.0]))):
+                h.pubs[pub].publish(msg)
+        assert common.spin_until(ex, lambda: ctl.n_dropped >= 60, 2.0)
+        common.spin_until(ex, lambda: False, 0.03)
+        assert ctl.fallback and h.got[c.CURRENT_COMMAND][-1].data == 1.25
 
 
 def test_actuator_rejects_and_clamps_invalid_commands():
@@ -191,10 +202,10 @@ def test_controller_with_unsynchronised_sensor_stamps(trigger):
         end = time.monotonic() + 0.3
         k = 0
         while time.monotonic() < end:
-            h.pubs[c.IMU_BODY].publish(_imu(k * 1_000_000, 9.81))
-            h.pubs[c.IMU_WHEEL].publish(_imu(k * 1_000_000 + 300_000, 9.81))
-            h.pubs[c.STROKE].publish(_joint(k * 1_000_000 + 600_000, [0.0]))
-            k += 1
+            k = time.time_ns()
+            h.pubs[c.IMU_BODY].publish(_imu(k, 9.81))
+            h.pubs[c.IMU_WHEEL].publish(_imu(k + 300_000, 9.81))
+            h.pubs[c.STROKE].publish(_joint(k + 600_000, [0.0]))
             common.spin_until(ex, lambda: False, 0.002, step=0.002)
         assert ctl.fallback == (trigger == 'sample')
         assert h.got[c.CURRENT_COMMAND][-1].data == (1.25 if trigger == 'sample' else 0.0)

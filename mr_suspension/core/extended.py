@@ -146,25 +146,53 @@ def extended_force(p, s, x, v, i, dt):
         kdt = k1 * dt
         fprev = s[S_FD]
         # Monotone root of h(u) = F_d(u) - F_prev - k1 dt (v - u) (h' = F_d' + k1 dt > 0):
-        # Newton from the previous u, kept inside the bracket of the signs seen so far.
+        # a few Newton steps from the previous u; if they do not settle, bracket the root
+        # and finish with Newton safeguarded by bisection.
         u = s[S_U]
-        lo = -np.inf
-        hi = np.inf
         tol = 1e-10 * (abs(v) + p[P_VY])
-        for _ in range(80):
+        done = False
+        for _ in range(4):
             fd, dfd, y, m, g = _element(p, s, u, i, dt)
             h = fd - fprev - kdt * (v - u)
-            if h > 0.0:
-                hi = u
-            else:
-                lo = u
             un = u - h / (max(dfd, 0.0) + kdt)
-            if not (lo < un < hi):
-                if lo > -np.inf and hi < np.inf:
-                    un = 0.5 * (lo + hi)
             if abs(un - u) <= tol:
+                done = True
                 break
             u = un
+        if not done:
+            fd, dfd, y, m, g = _element(p, s, u, i, dt)
+            h = fd - fprev - kdt * (v - u)
+            step = abs(v - u) + p[P_VY]
+            lo = u
+            hi = u
+            if h > 0.0:
+                for _ in range(200):
+                    lo = hi - step
+                    step *= 2.0
+                    if _element(p, s, lo, i, dt)[0] - fprev - kdt * (v - lo) <= 0.0:
+                        break
+                    hi = lo
+            else:
+                for _ in range(200):
+                    hi = lo + step
+                    step *= 2.0
+                    if _element(p, s, hi, i, dt)[0] - fprev - kdt * (v - hi) >= 0.0:
+                        break
+                    lo = hi
+            u = 0.5 * (lo + hi)
+            for _ in range(200):
+                fd, dfd, y, m, g = _element(p, s, u, i, dt)
+                h = fd - fprev - kdt * (v - u)
+                if h > 0.0:
+                    hi = u
+                else:
+                    lo = u
+                un = u - h / (max(dfd, 0.0) + kdt)
+                if not (lo < un < hi):
+                    un = 0.5 * (lo + hi)
+                if abs(un - u) <= tol or hi - lo <= tol:
+                    break
+                u = un
         if dfd < 0.0:
             dfd = 0.0
         tangent = dfd * kdt / (dfd + kdt)

@@ -78,6 +78,9 @@ class PlantNode(Node):
                                           'road is used up')
         self.max_catchup = common.declare(self, d, 'max_catchup', 'Real time: most steps per '
                                           'timer tick when behind the wall clock', 1, 100)
+        self.max_force_age = common.declare(
+            self, d, 'max_force_age', 'Real time: oldest damper force (in samples) a step may '
+            'use; 1 keeps the one-sample coupling, more keeps the rate on a slow machine', 1, 10)
         self.force_wait = common.declare(self, d, 'force_wait', 'Real time: longest wait for '
                                          'the damper force of a due step before stepping with '
                                          'the previous force [s]', 0.0, 0.1)
@@ -106,7 +109,8 @@ class PlantNode(Node):
         # Newest damper force: (sample index, force, tangent, stroke rate it was evaluated at).
         self.force = None
         self.started = False
-        self.t0_ns = 0
+        self.stamp_k = {}
+        self.last_stamp = 0
         self.wall0 = 0.0
         self.pub_wall = [0.0] * (self.road.n_steps + 1)
         self.latency = []
@@ -178,7 +182,6 @@ class PlantNode(Node):
         self.wall0 = time.monotonic()
         self.stats.mark()
         if not self.lockstep:
-            self.t0_ns = self.get_clock().now().nanoseconds
             self.step_timer = self.create_timer(self.config.dt, self._on_tick)
         self.get_logger().info('plant: node set connected, starting')
         self._publish_sample()
@@ -203,7 +206,17 @@ class PlantNode(Node):
 
     def _publish_sample(self):
         p = self.plant
-        ns = self.t0_ns + p.k * self.dt_ns
+        if self.lockstep:
+            ns = p.k * self.dt_ns
+        else:
+            # Real time: stamped with the wall time of publication, as a driver stamps a
+            # measurement; the damper force echoes the stamp and is matched back to k.
+            ns = max(self.get_clock().now().nanoseconds, self.last_stamp + 1)
+            self.last_stamp = ns
+            self.stamp_k[ns] = p.k
+            if len(self.stamp_k) > 4096:
+                for key in list(self.stamp_k)[:2048]:
+                    del self.stamp_k[key]
         for m in (self.msg_imu_s, self.msg_imu_u, self.msg_stroke, self.msg_truth):
             common.set_stamp(m.header, ns)
         self.msg_imu_s.linear_acceleration.z = p.a_s + self.gravity
@@ -240,7 +253,10 @@ class PlantNode(Node):
     def _on_force(self, raw):
         now = time.monotonic()
         stamp, _, velocity, effort = cdr.joint_state(raw)
-        k = int(round((stamp - self.t0_ns) / self.dt_ns))
+        if self.lockstep:
+            k = int(round(stamp / self.dt_ns))
+        else:
+            k = self.stamp_k.get(stamp, -1)
         if len(effort) < 2 or len(velocity) < 1 or not common.finite(
                 effort[0], effort[1], velocity[0]):
             self.get_logger().error('plant: invalid damper/force message ignored',
@@ -288,10 +304,11 @@ class PlantNode(Node):
 
         Step ``k -> k + 1`` is due at ``t0 + (k + 1) dt``. It is taken as soon as it is due and
         the damper force of sample ``k`` is in; without that force the plant waits at most
-        ``force_wait`` past the due time, then steps with the force of sample ``k - 1`` moved
-        along its tangent (a late force). Never with an older one: the coupling is at most one
-        sample old, which bounds its error; if the loop is slower than that, the run falls
-        behind the wall clock (reported as the achieved rate) instead of losing accuracy.
+        ``force_wait`` past the due time, then steps with the newest force moved along its
+        tangent (a late force), if that is at most ``max_force_age`` samples old (default 1:
+        the one-sample coupling, whose error is bounded); with an older one it waits, so a
+        loop slower than that falls behind the wall clock (the achieved rate) instead of
+        losing accuracy.
         """
         dt = self.config.dt
         n = 0
@@ -300,7 +317,7 @@ class PlantNode(Node):
             if now < due:
                 return
             newest = -1 if self.force is None else self.force[0]
-            if newest < self.plant.k and (newest < self.plant.k - 1
+            if newest < self.plant.k and (newest < self.plant.k - self.max_force_age
                                           or now < due + self.force_wait):
                 return
             self._advance()
