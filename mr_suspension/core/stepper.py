@@ -20,7 +20,6 @@ fast loop in real time) the correction is exactly zero and the step equals the s
 Pure numerics (no ROS imports).
 """
 
-import inspect
 import math
 
 import numpy as np
@@ -30,16 +29,6 @@ from mr_suspension.core import damper as dmp
 from mr_suspension.core import driver as drv
 from mr_suspension.core import quarter_car as qc
 from mr_suspension.core.simulator import DELAY_BUFFER
-
-# The driver step lost its ``dt`` argument when the driver array became dt-specific; accept both.
-_DRIVER_STEP_ARGS = len(inspect.signature(getattr(drv.driver_step, 'py_func',
-                                                  drv.driver_step)).parameters)
-
-
-def _driver_step(q, s, i_cmd, dt):
-    if _DRIVER_STEP_ARGS == 3:
-        return drv.driver_step(q, s, i_cmd)
-    return drv.driver_step(q, s, i_cmd, dt)
 
 
 class ControllerStepper:
@@ -103,7 +92,7 @@ class ActuatorStepper:
             self.head = (self.head + 1) % self.delay_n
         else:
             i_apply = i_cmd
-        coil, field = _driver_step(self.drv_p, self.drv_s, i_apply, self.dt)
+        coil, field = drv.driver_step(self.drv_p, self.drv_s, i_apply)
         f_d, c_d = dmp.damper_force(self.law, self.dp, self.ds, x, v, field, self.dt)
         return float(coil), float(field), float(f_d), float(c_d)
 

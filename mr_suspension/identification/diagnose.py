@@ -22,7 +22,7 @@ T_MIN = 2.0
 CORR_AMBIG = 0.8
 MAX_CAUSES = 3
 SEARCH_RATE = 250.0
-JOINT_FEV = 40
+JOINT_FEV = 20
 CLEAR_LOSS = 0.6
 UPGRADE = 'current_lag->current_lag_asymmetric'
 NESTED = {('current_lag', 'current_lag_asymmetric')}
@@ -344,7 +344,23 @@ def run(records, effects=engine.EFFECTS, n_folds=5, progress=None, search_rate=S
             chosen = list(alt_set)
             fits[tuple(chosen)] = alt
             swaps['/'.join(pair)]['swapped_to'] = b
-        elif not (pooled >= G_MIN and t >= T_MIN):
+            continue
+        # Both may be present (e.g. hysteresis and series stiffness): the union, started
+        # from the runner-up's own fit and searched jointly.
+        union = tuple(chosen) + (b,)
+        if len(chosen) < MAX_CAUSES and _compatible(chosen, b) and b in singles:
+            eta = dict(cur.eta)
+            for n in engine.EFFECT_PARAMS[b]:
+                eta[n] = singles[b].eta[n]
+            both = engine.fit(ds, union, start_eta=eta, start_theta=cur.theta, new=(),
+                              sweeps=2, joint=JOINT_FEV)
+            tick('union ' + '+'.join(union))
+            if accepted(both.test, cur.test):
+                chosen = list(union)
+                fits[union] = both
+                swaps['/'.join(pair)]['added'] = b
+                continue
+        if not (pooled >= G_MIN and t >= T_MIN):
             ambiguous.append(pair)
     # Backward check: drop any cause whose removal does not materially hurt.
     drop_loss = {}

@@ -47,10 +47,12 @@ def format_result(res):
     lines += ['', f'messages in the bag: {sum(counts.values())} on {len(counts)} topics '
               f'({res["summary"]["samples"]} plant samples)']
     if plant:
-        lines.append(f'plant: {plant.get("steps", 0)} steps at {plant.get("steps_per_s", 0):.0f}'
-                     f' steps/s ({plant.get("steps_per_s", 0) * plant.get("rate", 1000) ** -1:.2f}'
-                     f'x real time); force late on {plant.get("late_forces", 0)} steps; '
-                     f'loop latency p50/p99 {1e3 * plant.get("latency_p50_s", 0):.2f}/'
+        rate = plant.get('steps_per_s_sustained', 0)
+        lines.append(f'plant: {plant.get("steps", 0)} steps at {rate:.0f} steps/s '
+                     f'({rate / plant.get("rate", 1000):.2f}x real time) after a start-up '
+                     f'handshake of {plant.get("startup_s", 0):.2f} s; force late on '
+                     f'{plant.get("late_forces", 0)} steps; loop latency p50/p99 '
+                     f'{1e3 * plant.get("latency_p50_s", 0):.2f}/'
                      f'{1e3 * plant.get("latency_p99_s", 0):.2f} ms')
     lines.append('process exit codes: ' + ', '.join(
         f'{k} {v}' for k, v in res['returncodes'].items()))

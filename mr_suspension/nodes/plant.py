@@ -117,6 +117,7 @@ class PlantNode(Node):
         self.periods = []
         self.last_tick = None
         self.late_forces = 0
+        self.first_force = None
         self.step_cost = []
         self.n_forces = 0
         self.stats.data.update(mode='lockstep' if self.lockstep else 'realtime',
@@ -266,6 +267,8 @@ class PlantNode(Node):
             return
         self.n_forces += 1
         self.latency.append(now - self.pub_wall[k])
+        if self.first_force is None:
+            self.first_force = now
         if self.force is not None and k < self.force[0]:
             return
         self.force = (k, effort[0], effort[1], velocity[0])
@@ -332,9 +335,14 @@ class PlantNode(Node):
         cost = common.percentiles(self.step_cost)
         self.stats.data.update(
             steps=self.plant.k, run_wall_s=wall, steps_per_s=self.plant.k / wall,
+            startup_s=(self.first_force or self.wall0) - self.wall0,
+            steps_per_s_sustained=(self.plant.k - 1) / max(
+                time.monotonic() - (self.first_force or self.wall0), 1e-9),
             published=self.plant.k + 1, forces_received=self.n_forces,
             late_forces=self.late_forces, latency_p50_s=lat[0], latency_p99_s=lat[1],
             latency_max_s=max(self.latency, default=float('nan')),
+            latency_max_index=max(range(len(self.latency)), key=self.latency.__getitem__,
+                                  default=-1),
             latency_sum_s=sum(self.latency),
             jitter_p50_s=jit[0], jitter_p99_s=jit[1], ticks=len(self.periods) + 1,
             step_cost_p50_s=cost[0], step_cost_p99_s=cost[1])
