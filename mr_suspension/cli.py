@@ -102,8 +102,12 @@ def run_comparison(cfgs, road, out, stem):
     """Simulate labelled configs on one road; write CSV, PNG and metrics; return metrics."""
     from mr_suspension import plots
     results = {label: simulate(cfg, road) for label, cfg in cfgs.items()}
-    t_event = 0.5 if road.name in ('step', 'bump') else 0.0
-    metrics = {label: ride_metrics(res, t_event) for label, res in results.items()}
+    transient = road.name in ('step', 'bump')
+    metrics = {label: ride_metrics(res, 0.5 if transient else 0.0)
+               for label, res in results.items()}
+    if not transient:  # settling is defined after a single event, not on a random road
+        for m in metrics.values():
+            m.pop('settling_time')
     for label, res in results.items():
         res.to_csv(out / f'{stem}_{label}.csv')
     plots.time_histories(results, out / f'{stem}_time.png', title=f'{stem}: {road.name}')
