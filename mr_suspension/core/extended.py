@@ -28,6 +28,7 @@ import math
 from numba import njit
 import numpy as np
 
+from mr_suspension.core.fastmath import fast_tanh
 from mr_suspension.core.validation import build, check_finite, check_nonneg, check_positive
 
 EXT_NSTATE = 7
@@ -98,12 +99,12 @@ class ExtendedDamperParams:
         return cls(**{n: float(v) for n, v in zip(names, p)})
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True, error_model='numpy')
 def _element(p, s, u, i, dt):
     """Damping-element force ``F_d(u)`` and ``dF_d/du`` with the intermediates (y, M, g)."""
     vy = p[P_VY]
     isat = p[P_ISAT]
-    g = isat * math.tanh(i / isat) if isat > 0.0 else i
+    g = isat * fast_tanh(i / isat) if isat > 0.0 else i
     c = p[P_C0] + p[P_C1] * i
     fy = p[P_FY0] + p[P_FY1] * g
     xh = p[P_XH]
@@ -122,19 +123,19 @@ def _element(p, s, u, i, dt):
             y = z
             dy = a * (1.0 - abs(z))
     else:
-        y = math.tanh(u / vy)
+        y = fast_tanh(u / vy)
         dy = (1.0 - y * y) / vy
     mth = 1.0 - p[P_KAPPA] * s[S_E]
     if mth < 0.05:
         mth = 0.05
-    t = y if xh <= 0.0 else math.tanh(u / vy)
+    t = y if xh <= 0.0 else fast_tanh(u / vy)
     m = mth * (1.0 + p[P_RHO] * t)
     dm = mth * p[P_RHO] * (1.0 - t * t) / vy
     core = c * u + fy * y
     return m * core, dm * core + m * (c + fy * dy), y, m, g
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True, error_model='numpy')
 def extended_force(p, s, x, v, i, dt):
     """Advance one step; return ``(F, dF/dv)`` (equations in the module docstring).
 
@@ -213,7 +214,7 @@ def extended_force(p, s, x, v, i, dt):
     return force, tangent
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True, error_model='numpy')
 def simulate_extended(p, x, v, i, dt):
     """Run ``extended_force`` along a record from rest; return ``(F, u, y, M, g)`` arrays."""
     n = x.shape[0]
