@@ -6,8 +6,11 @@ import json
 import numpy as np
 import pytest
 
+from mr_suspension import cli as main_cli
+from mr_suspension.core import config
 from mr_suspension.identification import cli, model_io, synthetic
 from mr_suspension.identification.data import load_records, LoadOptions, parse_mapping
+from mr_suspension.nodes.common import corner_config
 
 
 def _write_csv(path, rec, mm_kn=False):
@@ -93,3 +96,28 @@ def test_force_in_kn_read_as_n_is_flagged(tmp_path, capsys):
     rep = json.loads((out / 'report.json').read_text())
     assert any('kN' in w for w in rep['input_warnings'])
     assert rep['verdict'] == 'none'
+
+
+def test_fitted_model_plugs_into_simulator_and_nodes(tmp_path):
+    # A diagnose model.json is a damper and a driver parameter set for simulate and the nodes.
+    rec, _ = synthetic.make_record(('current_lag',), seed=5, duration=12.0)
+    csv = tmp_path / 'rig.csv'
+    np.savetxt(csv, np.column_stack([rec.time, rec.displacement, rec.force, rec.i_in]),
+               delimiter=',', header='time,displacement,force,current_command', comments='',
+               fmt='%.10g')
+    out = tmp_path / 'diag'
+    assert cli.main(['diagnose', str(csv), '--out', str(out), '--quiet']) == 0
+    model_path = out / 'model.json'
+    params, dyn = model_io.load_fitted_model(model_path)
+    damper = config.load_damper(model_path)
+    assert damper == params
+    driver = config.load_driver(model_path)
+    assert driver == model_io.fitted_driver(model_path)
+    assert driver.dead_time == pytest.approx(min(dyn['dead_time'], 0.25))
+    corner = corner_config(damper=str(model_path), driver=str(model_path))
+    assert corner.damper == params
+    sim_out = tmp_path / 'sim'
+    assert main_cli.main(['simulate', '--damper', str(model_path), '--driver', str(model_path),
+                          '--duration', '2', '--out', str(sim_out)]) == 0
+    metrics = json.loads((sim_out / 'metrics.json').read_text())
+    assert metrics['skyhook_onoff']['body_acc_rms'] > 0.0

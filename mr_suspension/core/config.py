@@ -1,8 +1,9 @@
 """Load parameter sets from the YAML files in ``config/`` (one file per vehicle, damper, ...).
 
 A name such as ``seed001_military`` is looked up as ``config/<kind>/<name>.yaml``; a path to a
-YAML file is read directly. The config directory is found in this order: ``$MR_SUSPENSION_CONFIG``,
-the source tree (``<repo>/config``), then the ament share directory of an installed package.
+YAML (or JSON) file is read directly. The config directory is found in this order:
+``$MR_SUSPENSION_CONFIG``, the source tree (``<repo>/config``), then the ament share directory
+of an installed package.
 """
 
 import os
@@ -12,7 +13,7 @@ import yaml
 
 from mr_suspension.control.laws import ControllerParams
 from mr_suspension.core.damper import damper_from_dict
-from mr_suspension.core.driver import DriverParams
+from mr_suspension.core.driver import DriverParams, from_fitted_model
 from mr_suspension.core.quarter_car import QuarterCarParams
 
 KINDS = ('vehicles', 'dampers', 'drivers', 'controllers', 'scenarios')
@@ -44,7 +45,7 @@ def available(kind):
 def load_yaml(kind, name_or_path):
     """Read the mapping of a named parameter set or a YAML file path."""
     path = Path(str(name_or_path))
-    if path.suffix not in ('.yaml', '.yml'):
+    if path.suffix not in ('.yaml', '.yml', '.json'):
         path = config_dir() / kind / f'{name_or_path}.yaml'
     if not path.is_file():
         names = available(kind) if kind in KINDS else []
@@ -68,13 +69,26 @@ def load_vehicle(name):
 
 
 def load_damper(name):
-    """Load a damper law and parameters from ``config/dampers`` (key ``law`` selects it)."""
-    return damper_from_dict(load_yaml('dampers', name))
+    """Load a damper law and parameters from ``config/dampers`` (key ``law`` selects it).
+
+    A ``model.json`` written by ``mr-suspension diagnose`` also works: its fitted extended
+    damper is used, so simulator and nodes run with the corrected damper.
+    """
+    data = load_yaml('dampers', name)
+    if isinstance(data.get('damper'), dict):
+        data = data['damper']
+    return damper_from_dict(data)
 
 
 def load_driver(name):
-    """Load current-driver (Wonder Box) and fluid parameters from ``config/drivers``."""
-    return DriverParams.from_dict(load_yaml('drivers', name))
+    """Load current-driver (Wonder Box) and fluid parameters from ``config/drivers``.
+
+    A ``diagnose`` ``model.json`` gives the Wonder Box with the fitted current dynamics.
+    """
+    data = load_yaml('drivers', name)
+    if 'current_dynamics' in data:
+        return from_fitted_model(data)
+    return DriverParams.from_dict(data)
 
 
 def load_controller(name):

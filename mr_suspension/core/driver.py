@@ -6,7 +6,7 @@ fall time constants -> dead time -> coil current -> fluid magnetisation lag (fas
 slow on falling current) -> field current that the force law sees.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 from numba import njit
@@ -177,3 +177,39 @@ def driver_series(q, i_cmd):
     for k in range(n):
         coil[k], field[k] = driver_step(q, s, i_cmd[k])
     return coil, field
+
+
+def _dynamics(block, name):
+    out = {}
+    for k in ('dead_time', 'tau_rise', 'tau_fall'):
+        try:
+            val = float(block[k])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f'fitted model {name}: missing or non-numeric {k}') from None
+        if not (math.isfinite(val) and val >= 0.0):
+            raise ValueError(f'fitted model {name}: {k} must be finite and >= 0, got {val}')
+        out[k] = val
+    return out
+
+
+def from_fitted_model(model, base=None):
+    """Return DriverParams carrying the current dynamics of a ``diagnose`` model.json mapping.
+
+    Command input: the fitted dead time and rise/fall lags are the whole chain (driver fields,
+    fluid lags 0). Measured-current input with an identified ``driver`` block: that block is the
+    driver and the fitted lags are the fluid (a fitted dead time is added to the driver's: a
+    dead time commutes with the lags). The static map comes from ``base``.
+    """
+    if not isinstance(model, dict) or 'current_dynamics' not in model:
+        raise ValueError('fitted model: no "current_dynamics" block')
+    dyn = _dynamics(model['current_dynamics'], 'current_dynamics')
+    base = base or DriverParams()
+    drv = model.get('driver')
+    if model.get('input', {}).get('signal') == 'current' and drv:
+        drv = _dynamics(drv, 'driver')
+        return replace(base, tau_rise=drv['tau_rise'], tau_fall=drv['tau_fall'],
+                       dead_time=min(drv['dead_time'] + dyn['dead_time'], 0.25),
+                       fluid_tau_rise=dyn['tau_rise'], fluid_tau_fall=dyn['tau_fall'])
+    return replace(base, tau_rise=dyn['tau_rise'], tau_fall=dyn['tau_fall'],
+                   dead_time=min(dyn['dead_time'], 0.25), fluid_tau_rise=0.0,
+                   fluid_tau_fall=0.0)

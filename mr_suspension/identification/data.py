@@ -329,7 +329,7 @@ def load_mat(path, opts=None):
 
 
 def _msg_values(msg, quantity):
-    """Quantities carried by one message: ``std_msgs`` ``data`` or a ``JointState``."""
+    """Quantities carried by one message: a Float64 ``data`` field or a ``JointState``."""
     if hasattr(msg, 'data'):
         return {quantity: float(np.asarray(msg.data, dtype=float).ravel()[0])}
     if hasattr(msg, 'effort') or hasattr(msg, 'position'):
@@ -389,7 +389,7 @@ def load_bag(path, opts=None):
     Topics are matched by name (``stroke``/``displacement``, ``damper/force``, ``command``,
     ``coil_current``, ``velocity``/``stroke_rate``, ``temperature``; truth, tyre, IMU and clock
     topics are ignored; or ``--columns force=/my/topic``). Values are ``msg.data``
-    (std_msgs) or, for ``JointState``, ``position[0]``/``velocity[0]`` and ``effort[0]`` on
+    (Float64) or, for ``JointState``, ``position[0]``/``velocity[0]`` and ``effort[0]`` on
     the force topic (the actuator also reports stroke and rate there). Times are header
     stamps when present, else bag stamps (sim time in lockstep). All signals are
     interpolated onto a uniform grid at the force topic's median period (commands held).

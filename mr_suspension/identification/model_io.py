@@ -82,28 +82,12 @@ def load_fitted_model(path):
 def fitted_driver(path, base=None):
     """Return ``core.driver.DriverParams`` carrying a fitted model's current dynamics.
 
-    Command input: the fitted dead time and rise/fall lags are the whole chain (driver
-    fields; fluid lags 0). Measured-current input with an identified ``driver`` block: that
-    block is the driver and the fitted lags are the fluid (``fluid_tau_rise/fall``; a fitted
-    dead time is added to the driver's, a dead time commutes with the lags). The static map
-    comes from ``base`` (default ``DriverParams()``).
+    See :func:`mr_suspension.core.driver.from_fitted_model`; ``path`` is a model.json path or
+    the loaded mapping.
     """
-    from dataclasses import replace
+    from mr_suspension.core.driver import from_fitted_model
 
-    from mr_suspension.core.driver import DriverParams
-
-    model = load_model(path) if not isinstance(path, dict) else path
-    dyn = _check_dyn(model['current_dynamics'])
-    base = base or DriverParams()
-    drv = model.get('driver')
-    if model.get('input', {}).get('signal') == 'current' and drv:
-        drv = _check_dyn(drv)
-        return replace(base, tau_rise=drv['tau_rise'], tau_fall=drv['tau_fall'],
-                       dead_time=min(drv['dead_time'] + dyn['dead_time'], 0.25),
-                       fluid_tau_rise=dyn['tau_rise'], fluid_tau_fall=dyn['tau_fall'])
-    return replace(base, tau_rise=dyn['tau_rise'], tau_fall=dyn['tau_fall'],
-                   dead_time=min(dyn['dead_time'], 0.25), fluid_tau_rise=0.0,
-                   fluid_tau_fall=0.0)
+    return from_fitted_model(load_model(path) if not isinstance(path, dict) else path, base)
 
 
 def predict(model, record):
