@@ -7,6 +7,8 @@ from pathlib import Path
 import sys
 import time
 
+import yaml
+
 from mr_suspension.core import config, road as roads
 from mr_suspension.core.metrics import ride_metrics
 from mr_suspension.core.simulator import CornerConfig, simulate
@@ -30,7 +32,13 @@ METRIC_LABELS = {
 }
 
 
-def _road_from_args(args, dt):
+def road_spec_from_args(args):
+    """Return the road mapping of the ``--road ...`` options (``--road-spec`` wins if given)."""
+    if getattr(args, 'road_spec', ''):
+        spec = yaml.safe_load(args.road_spec)
+        if not isinstance(spec, dict):
+            raise ValueError('--road-spec must be a YAML mapping such as "{type: step}"')
+        return spec
     spec = {'type': args.road}
     if args.road == 'iso8608':
         spec.update(road_class=args.road_class, speed=args.speed, seed=args.seed)
@@ -42,7 +50,11 @@ def _road_from_args(args, dt):
         spec.update(amplitude=args.height, freq=args.freq)
     elif args.road == 'sweep':
         spec.update(amplitude=args.height)
-    return roads.from_spec(spec, duration=args.duration, dt=dt)
+    return spec
+
+
+def _road_from_args(args, dt):
+    return roads.from_spec(road_spec_from_args(args), duration=args.duration, dt=dt)
 
 
 def corner_from_args(args, controller=None):

@@ -10,40 +10,13 @@ import pytest
 
 from mr_suspension.control.laws import LAW_IDS
 from mr_suspension.core import config as cfg
-from mr_suspension.core.metrics import rms
-from mr_suspension.nodes import common
-from mr_suspension.nodes.actuator import ActuatorNode
-from mr_suspension.nodes.controller import ControllerNode
 from mr_suspension.nodes.launch import agreement, corner_config, offline_summary
-from mr_suspension.nodes.plant import PlantNode
-from mr_suspension.nodes.testing import add, params, ros_context
+from mr_suspension.nodes.testing import run_in_process
 
 ROAD = '{type: bump, height: 0.05, length: 2.0, speed: 10.0}'
 DURATION = 1.0
 SETS = [name for name in cfg.available('controllers')
         if name not in ('passive_1A',)]        # passive_1A: covered by test_nodes_lockstep
-
-
-def _nodes(controller):
-    common_p = {'lockstep': True, 'controller': controller}
-    with ros_context() as (ctx, ex, nodes):
-        plant = add(ex, nodes, PlantNode(context=ctx, parameter_overrides=params(
-            road=ROAD, duration=DURATION, start_delay=0.05, exit_at_end=False, **common_p)))
-        acc, stroke, tyre = [], [], []
-
-        def record(_step=plant._advance):
-            _step()
-            p = plant.plant
-            acc.append(p.a_s)
-            stroke.append(p.stroke)
-            tyre.append(p.f_t - p.static_tyre_load)
-
-        plant._advance = record
-        add(ex, nodes, ControllerNode(context=ctx, parameter_overrides=params(**common_p)))
-        add(ex, nodes, ActuatorNode(context=ctx, parameter_overrides=params(**common_p)))
-        assert common.spin_until(ex, lambda: plant.plant.done, 60.0)
-    return {'body_acc_rms': rms(acc), 'working_space_rms': rms(stroke),
-            'tyre_load_rms': rms(tyre)}
 
 
 def test_every_law_has_a_set():
@@ -52,7 +25,7 @@ def test_every_law_has_a_set():
 
 @pytest.mark.parametrize('controller', SETS)
 def test_law_through_node_set_matches_offline(controller):
-    nodes = _nodes(controller)
+    nodes, _ = run_in_process(ROAD, DURATION, controller, True)
     offline = offline_summary(corner_config(controller=controller), ROAD, DURATION)
     for key, diff in agreement(nodes, offline).items():
         assert abs(diff) < 1e-6, (controller, key, diff)

@@ -50,3 +50,12 @@ def test_sine_gain_ignores_offset_and_phase():
     t = np.arange(0, 5.0, 1e-3)
     y = 0.3 + 1.7 * np.sin(2 * np.pi * 3.0 * t + 0.7)
     assert metrics.sine_gain(t, y, 3.0) == pytest.approx(1.7, rel=1e-9)
+
+
+def test_jitted_sos_step_equals_scipy_sosfilt():
+    dt = 1e-3
+    x = np.random.default_rng(4).normal(size=3000)
+    sos = metrics.wk_sos(dt)
+    zi = np.zeros((sos.shape[0], 2))
+    y = np.array([metrics.sos_step(sos, zi, v) for v in x])
+    assert np.allclose(y, metrics.wk_filter(x, dt), rtol=1e-12, atol=1e-12)

@@ -8,42 +8,14 @@ import yaml
 from mr_suspension.core import road as rd
 from mr_suspension.core.metrics import rms
 from mr_suspension.core.stepper import ActuatorStepper, ControllerStepper, PlantStepper
-from mr_suspension.nodes import common
-from mr_suspension.nodes.actuator import ActuatorNode
-from mr_suspension.nodes.controller import ControllerNode
 from mr_suspension.nodes.launch import agreement, corner_config, offline_summary
-from mr_suspension.nodes.plant import PlantNode
-from mr_suspension.nodes.testing import add, params, ros_context
+from mr_suspension.nodes.testing import run_in_process
 
 SCENARIOS = {
     'bump': '{type: bump, height: 0.05, length: 2.0, speed: 10.0}',
     'step': '{type: step, height: 0.05}',
     'iso8608': '{type: iso8608, road_class: C, speed: 20.0, seed: 1}',
 }
-
-
-def run_in_process(road, duration, controller, lockstep):
-    """Run the three nodes in one executor; return the summary of the plant's samples."""
-    common_p = {'lockstep': lockstep, 'controller': controller}
-    with ros_context() as (ctx, ex, nodes):
-        plant = add(ex, nodes, PlantNode(context=ctx, parameter_overrides=params(
-            road=road, duration=duration, start_delay=0.05, exit_at_end=False, **common_p)))
-        acc, stroke, tyre = [], [], []
-
-        def record(_step=plant._advance):
-            _step()
-            p = plant.plant
-            acc.append(p.a_s)
-            stroke.append(p.stroke)
-            tyre.append(p.f_t - p.static_tyre_load)
-
-        plant._advance = record
-        add(ex, nodes, ControllerNode(context=ctx, parameter_overrides=params(**common_p)))
-        add(ex, nodes, ActuatorNode(context=ctx, parameter_overrides=params(**common_p)))
-        assert common.spin_until(ex, lambda: plant.plant.done, 60.0)
-        late = plant.late_forces
-    return {'body_acc_rms': rms(acc), 'working_space_rms': rms(stroke),
-            'tyre_load_rms': rms(tyre)}, late
 
 
 def stepper_reference(road, duration, controller):

@@ -28,7 +28,7 @@ from scipy import linalg, optimize
 
 from mr_suspension.core import damper as dmp
 from mr_suspension.core.driver import DRIVER_STATE_SIZE, driver_step
-from mr_suspension.core.metrics import wk_sos
+from mr_suspension.core.metrics import sos_step, wk_sos
 from mr_suspension.core.quarter_car import CAR_G, CAR_MS, CAR_MU, plant_step
 from mr_suspension.core.quarter_car import ZS, ZU
 from mr_suspension.core.validation import check_nonneg, check_positive
@@ -95,12 +95,7 @@ def open_loop_cost(car_p, law, dp, drv_p, i_seq, block_n, road_z, road_zd, dt, s
         zr_dot = 0.5 * (road_zd[k] + road_zd[k + 1])
         a_s, a_u, f_t = plant_step(car_p, q, f_d, c_d, z_r, zr_dot, dt)
         if objective == 1:
-            y = a_s
-            for j in range(nsec):
-                x0 = y
-                y = sos[j, 0] * x0 + zi[j, 0]
-                zi[j, 0] = sos[j, 1] * x0 - sos[j, 4] * y + zi[j, 1]
-                zi[j, 1] = sos[j, 2] * x0 - sos[j, 5] * y
+            y = sos_step(sos, zi, a_s)
             acc += y * y
         elif objective == 2:
             acc += (f_t - f_t0) * (f_t - f_t0)

@@ -7,6 +7,7 @@ The Wk weighting is the product of the ISO 2631-1:1997 Annex A filters: band lim
 
 import math
 
+from numba import njit
 import numpy as np
 from scipy import signal
 
@@ -41,6 +42,22 @@ def wk_sos(dt):
     z, p, k = signal.tf2zpk(num, den)
     zd, pd, kd = signal.bilinear_zpk(z, p, k, 1.0 / dt)
     return signal.zpk2sos(zd, pd, kd)
+
+
+@njit(cache=True)
+def sos_step(sos, zi, x):
+    """Filter one sample through second-order sections (direct form II transposed).
+
+    ``zi`` (sections x 2) is updated in place; the same recursion as ``scipy.signal.sosfilt``,
+    for use inside jitted time loops.
+    """
+    y = x
+    for j in range(sos.shape[0]):
+        x0 = y
+        y = sos[j, 0] * x0 + zi[j, 0]
+        zi[j, 0] = sos[j, 1] * x0 - sos[j, 4] * y + zi[j, 1]
+        zi[j, 1] = sos[j, 2] * x0 - sos[j, 5] * y
+    return y
 
 
 def wk_filter(acc, dt):

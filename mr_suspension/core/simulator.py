@@ -21,7 +21,7 @@ import numpy as np
 from mr_suspension.control.laws import controller_step, ControllerParams, N_CTRL_STATE, N_MEAS
 from mr_suspension.core import batch, damper as dmp
 from mr_suspension.core.driver import DRIVER_STATE_SIZE, driver_step, DriverParams, prepare
-from mr_suspension.core.metrics import rms, wk_sos
+from mr_suspension.core.metrics import rms, sos_step, wk_sos
 from mr_suspension.core.quarter_car import CAR_G, CAR_MS, CAR_MU, plant_step, QuarterCarParams
 from mr_suspension.core.quarter_car import VS, VU, ZS, ZU
 from mr_suspension.core.validation import check_nonneg, check_positive
@@ -142,13 +142,7 @@ def corner_loop(car_p, law, dp, ds, drv_p, drv_s, cid, cp, cs, road_z, road_zd, 
         z_r = 0.5 * (road_z[k] + road_z[k + 1])
         zr_dot = 0.5 * (road_zd[k] + road_zd[k + 1])
         a_s, a_u, f_t = plant_step(car_p, q, f_d, c_d, z_r, zr_dot, dt)
-        # Wk-weighted body acceleration (direct form II transposed biquads).
-        y = a_s
-        for j in range(nsec):
-            x0 = y
-            y = sos[j, 0] * x0 + zi[j, 0]
-            zi[j, 0] = sos[j, 1] * x0 - sos[j, 4] * y + zi[j, 1]
-            zi[j, 1] = sos[j, 2] * x0 - sos[j, 5] * y
+        y = sos_step(sos, zi, a_s)  # Wk-weighted body acceleration
         xs = q[ZS] - q[ZU]
         acc[0] += a_s * a_s
         acc[1] = max(acc[1], abs(a_s))

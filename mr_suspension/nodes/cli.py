@@ -4,30 +4,12 @@ import json
 from pathlib import Path
 import shutil
 
-import yaml
-
+from mr_suspension.cli import road_spec_from_args as road_spec
 from mr_suspension.nodes.launch import DEFAULT_ROAD, run_node_set
 
 LABELS = {'body_acc_rms': ('body acc. RMS', 'm/s²', '.4f'),
           'working_space_rms': ('working space RMS', 'mm', '.3f'),
           'tyre_load_rms': ('dyn. tyre load RMS', 'N', '.2f')}
-
-
-def road_spec(args):
-    """Road mapping from the command-line options (``--road-spec`` wins)."""
-    if args.road_spec:
-        spec = yaml.safe_load(args.road_spec)
-        if not isinstance(spec, dict):
-            raise ValueError('--road-spec must be a YAML mapping such as "{type: step}"')
-        return spec
-    spec = {'type': args.road}
-    if args.road == 'iso8608':
-        spec.update(road_class=args.road_class, speed=args.speed, seed=args.seed)
-    elif args.road == 'bump':
-        spec.update(height=args.height, speed=args.speed)
-    elif args.road == 'step':
-        spec.update(height=args.height)
-    return spec
 
 
 def format_result(res):

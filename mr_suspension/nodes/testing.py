@@ -7,7 +7,11 @@ import rclpy
 from rclpy.experimental import EventsExecutor
 from rclpy.parameter import Parameter
 
+from mr_suspension.core.metrics import rms
 from mr_suspension.nodes import common
+from mr_suspension.nodes.actuator import ActuatorNode
+from mr_suspension.nodes.controller import ControllerNode
+from mr_suspension.nodes.plant import PlantNode
 
 
 @contextlib.contextmanager
@@ -39,3 +43,32 @@ def add(executor, nodes, node):
     executor.add_node(node)
     nodes.append(node)
     return node
+
+
+def run_in_process(road, duration, controller, lockstep):
+    """Run plant, controller and actuator in one executor; return (summary, late forces).
+
+    The summary has the RMS body acceleration, working space and dynamic tyre load of the
+    plant's samples, as :func:`mr_suspension.nodes.launch.offline_summary` has them.
+    """
+    common_p = {'lockstep': lockstep, 'controller': controller}
+    with ros_context() as (ctx, ex, nodes):
+        plant = add(ex, nodes, PlantNode(context=ctx, parameter_overrides=params(
+            road=road, duration=duration, start_delay=0.05, exit_at_end=False, **common_p)))
+        acc, stroke, tyre = [], [], []
+
+        def record(_step=plant._advance):
+            _step()
+            p = plant.plant
+            acc.append(p.a_s)
+            stroke.append(p.stroke)
+            tyre.append(p.f_t - p.static_tyre_load)
+
+        plant._advance = record
+        add(ex, nodes, ControllerNode(context=ctx, parameter_overrides=params(**common_p)))
+        add(ex, nodes, ActuatorNode(context=ctx, parameter_overrides=params(**common_p)))
+        if not common.spin_until(ex, lambda: plant.plant.done, 60.0):
+            raise TimeoutError('node set did not finish within 60 s')
+        late = plant.late_forces
+    return {'body_acc_rms': rms(acc), 'working_space_rms': rms(stroke),
+            'tyre_load_rms': rms(tyre)}, late
