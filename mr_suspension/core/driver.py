@@ -110,13 +110,12 @@ def prepare(params, dt):
 
 
 @njit(cache=True)
-def driver_step_current(q, s, u):
-    """Advance driver and fluid one step from the static-map output ``u`` [A].
+def driver_input(q, s, u):
+    """Feed the static-map output ``u`` [A] of this step into the lag and the dead-time buffer.
 
     ``y += (1 - exp(-dt/tau)) (u - y)`` with ``tau = tau_rise`` if ``u > y`` else ``tau_fall``
-    (exact for a piecewise-constant input), then the dead time as a ring buffer of
-    ``round(dead_time / dt)`` samples, then the fluid lag with its own rise/fall constants.
-    Returns (coil current, field current) [A].
+    (exact for a piecewise-constant input); ``y`` enters the ring buffer of
+    ``round(dead_time / dt)`` samples. Call after :func:`driver_output` of the same step.
     """
     y = s[DRV_LAG]
     y += (q[Q_ARISE] if u > y else q[Q_AFALL]) * (u - y)
@@ -124,16 +123,43 @@ def driver_step_current(q, s, u):
     nd = int(q[Q_NDEAD])
     if nd > 0:
         head = int(s[DRV_HEAD])
-        coil = s[DRV_BUF + head]
         s[DRV_BUF + head] = y
         head += 1
         s[DRV_HEAD] = 0 if head >= nd else head
+
+
+@njit(cache=True)
+def driver_output(q, s):
+    """Return (coil, field) [A] of this step from the lag output ``dead_time`` ago.
+
+    With a dead time of at least one sample the coil current does not depend on this step's
+    command, so the damper force can be computed before the command arrives (the actuator node
+    uses that in lock-step). The fluid lag has its own rise/fall constants.
+    """
+    if int(q[Q_NDEAD]) > 0:
+        coil = s[DRV_BUF + int(s[DRV_HEAD])]
     else:
-        coil = y
+        coil = s[DRV_LAG]
     f = s[DRV_FLUID]
     f += (q[Q_FRISE] if coil > f else q[Q_FFALL]) * (coil - f)
     s[DRV_FLUID] = f
     return coil, f
+
+
+@njit(cache=True)
+def driver_step_current(q, s, u):
+    """Advance driver and fluid one step from the static-map output ``u`` [A].
+
+    Lag and dead time (:func:`driver_input`) then fluid (:func:`driver_output`); with a dead
+    time the output is read before this step's input enters the buffer, as a ring buffer
+    does. Returns (coil current, field current) [A].
+    """
+    if int(q[Q_NDEAD]) > 0:
+        coil, f = driver_output(q, s)
+        driver_input(q, s, u)
+        return coil, f
+    driver_input(q, s, u)
+    return driver_output(q, s)
 
 
 @njit(cache=True)
@@ -150,12 +176,17 @@ def driver_step(q, s, i_cmd):
     ``static_current`` of it, which is ``i_cmd`` clipped to ``[0, i_top]``; that identity is used
     directly (no pow calls on the hot path).
     """
-    u = i_cmd
-    if not u > 0.0:
-        u = 0.0
-    elif u > q[Q_ITOP]:
-        u = q[Q_ITOP]
-    return driver_step_current(q, s, u)
+    return driver_step_current(q, s, clip_command(q, i_cmd))
+
+
+@njit(cache=True)
+def clip_command(q, i_cmd):
+    """Apply the static map to an ECU current command: clip to ``[0, i_top]`` (NaN -> 0)."""
+    if not i_cmd > 0.0:
+        return 0.0
+    if i_cmd > q[Q_ITOP]:
+        return q[Q_ITOP]
+    return i_cmd
 
 
 def driver_state(current=0.0):

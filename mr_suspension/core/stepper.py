@@ -84,15 +84,38 @@ class ActuatorStepper:
         self.dbuf = np.zeros(max(delay_steps, 1))
         self.head = 0
 
-    def step(self, i_cmd, x, v):
-        """Return (coil current, field current, damper force, dF/dv) for one sample."""
+    @property
+    def command_ahead(self):
+        """True when the force of a step does not depend on that step's command.
+
+        With a driver dead time of at least one sample the coil current lags the command, so
+        :meth:`force` can run as soon as the motion arrives and :meth:`command` afterwards
+        (the lock-step actuator then takes the controller off the critical path).
+        """
+        return int(self.drv_p[drv.Q_NDEAD]) > 0
+
+    def _delayed(self, i_cmd):
         if self.delay_n > 0:
             i_apply = self.dbuf[self.head]
             self.dbuf[self.head] = i_cmd
             self.head = (self.head + 1) % self.delay_n
-        else:
-            i_apply = i_cmd
-        coil, field = drv.driver_step(self.drv_p, self.drv_s, i_apply)
+            return i_apply
+        return i_cmd
+
+    def force(self, x, v):
+        """First half of a step: (coil, field, force, dF/dv) from the driver's delayed output."""
+        coil, field = drv.driver_output(self.drv_p, self.drv_s)
+        f_d, c_d = dmp.damper_force(self.law, self.dp, self.ds, x, v, field, self.dt)
+        return float(coil), float(field), float(f_d), float(c_d)
+
+    def command(self, i_cmd):
+        """Second half of a step: feed this step's command into the driver."""
+        drv.driver_input(self.drv_p, self.drv_s,
+                         drv.clip_command(self.drv_p, self._delayed(i_cmd)))
+
+    def step(self, i_cmd, x, v):
+        """Return (coil current, field current, damper force, dF/dv) for one sample."""
+        coil, field = drv.driver_step(self.drv_p, self.drv_s, self._delayed(i_cmd))
         f_d, c_d = dmp.damper_force(self.law, self.dp, self.ds, x, v, field, self.dt)
         return float(coil), float(field), float(f_d), float(c_d)
 

@@ -11,7 +11,10 @@ Real time: each motion sample is answered at once with the newest valid command,
 is normally back at the plant before its next step; the command is then usually the one computed
 from the previous sensor sample (one sample, 1 ms, of command latency, against about 25 ms of
 driver and fluid response). Lock-step pairs the ``k``-th command with the ``k``-th motion
-sample, which is the simulator's order exactly.
+sample, which is the simulator's order exactly; with a driver dead time of one sample or more
+(the Wonder Box has 3 ms) force ``k`` does not depend on command ``k``, so the force is published
+as soon as motion ``k`` arrives and command ``k`` is applied afterwards: the same numbers, with the
+controller off the plant-actuator critical path.
 
 Commands are checked: NaN/inf are rejected (the previous valid command is held), values outside
 ``[current_min, current_max]`` are clamped, both with a throttled log. Before the first command,
@@ -84,6 +87,8 @@ class ActuatorNode(Node):
         self.have_command = False
         self.commands = deque()
         self.motions = deque()
+        self.forces_done = 0
+        self.commands_done = 0
         self.n_rejected = 0
         self.n_clamped = 0
         self.n_commands = 0
@@ -148,16 +153,39 @@ class ActuatorNode(Node):
     def _run_lockstep(self):
         if not self.gate.check():
             return
-        while self.commands and self.motions:
-            self._apply(self.commands.popleft(), self.motions.popleft())
+        if not self.stepper.command_ahead:
+            while self.commands and self.motions:
+                self._apply(self.commands.popleft(), self.motions.popleft())
+            return
+        # The driver's dead time makes force k independent of command k: answer the plant as
+        # soon as motion k is in (command k-1 applied), then take command k. The controller
+        # is off the critical path; the numbers are those of step() (same order of updates).
+        progress = True
+        while progress:
+            progress = False
+            if self.forces_done == self.commands_done and self.motions:
+                stamp, x, v = self._checked(self.motions.popleft())
+                self._publish(stamp, x, v, *self.stepper.force(x, v))
+                self.forces_done += 1
+                progress = True
+            if self.commands_done < self.forces_done and self.commands:
+                self.stepper.command(self.commands.popleft())
+                self.commands_done += 1
+                progress = True
 
-    def _apply(self, i_cmd, motion):
+    def _checked(self, motion):
         stamp, x, v = motion
         if not common.finite(x, v):
             self.get_logger().error('actuator: non-finite stroke motion; damper force held '
                                     'at zero', throttle_duration_sec=1.0)
             x, v = 0.0, 0.0
-        coil, _, force, tangent = self.stepper.step(i_cmd, x, v)
+        return stamp, x, v
+
+    def _apply(self, i_cmd, motion):
+        stamp, x, v = self._checked(motion)
+        self._publish(stamp, x, v, *self.stepper.step(i_cmd, x, v))
+
+    def _publish(self, stamp, x, v, coil, _field, force, tangent):
         m = self.msg_force
         common.set_stamp(m.header, stamp)
         m.position = [x, 0.0]
