@@ -15,6 +15,23 @@ import matplotlib.pyplot as plt  # noqa: E402, I100  (backend must be chosen fir
 MARKERS = ('o', 's', '^', 'v', 'D', 'P', 'X', '*', '<', '>', 'h', 'p')
 
 
+def _save(fig, path, title=''):
+    """Add the title, lay out, write the PNG and close the figure."""
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _comfort_axes(axes):
+    """Label the comfort axis of trade-off panels and add the legend."""
+    for ax in axes:
+        ax.set_ylabel('Wk body acceleration RMS [m/s^2]')
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=7, ncol=2)
+
+
 def response_figure(families, path, title=''):
     """Four-panel frequency-response figure; ``families``: ``{label: (freqs, responses)}``.
 
@@ -33,11 +50,7 @@ def response_figure(families, path, title=''):
         ax.set_ylabel(ylabel)
         ax.grid(True, which='both', alpha=0.3)
     axes[0, 0].legend(fontsize=7)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, title)
 
 
 def time_histories(results, path, title='', t_max=None):
@@ -58,11 +71,7 @@ def time_histories(results, path, title='', t_max=None):
         ax.grid(True, alpha=0.3)
     axes[-1].set_xlabel('time [s]')
     axes[0].legend(fontsize=7, ncol=3)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, title)
 
 
 def tradeoff(rows, path, passive=None, scenario=None, title=''):
@@ -83,14 +92,8 @@ def tradeoff(rows, path, passive=None, scenario=None, title=''):
             ax.plot(r[key] * scale, r['body_acc_wk_rms'], MARKERS[k % len(MARKERS)],
                     label=r['law'])
         ax.set_xlabel(xlabel)
-        ax.set_ylabel('Wk body acceleration RMS [m/s^2]')
-        ax.grid(True, alpha=0.3)
-    axes[0].legend(fontsize=7, ncol=2)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _comfort_axes(axes)
+    _save(fig, path, title)
 
 
 def tradeoff_families(families, path, passive, title=''):
@@ -111,14 +114,8 @@ def tradeoff_families(families, path, passive, title=''):
                     MARKERS[k % len(MARKERS)] + '-', color=colours[k % 10], lw=0.8, ms=4,
                     label=label)
         ax.set_xlabel(xlabel)
-        ax.set_ylabel('Wk body acceleration RMS [m/s^2]')
-        ax.grid(True, alpha=0.3)
-    axes[0].legend(fontsize=7, ncol=2)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _comfort_axes(axes)
+    _save(fig, path, title)
 
 
 def lines(xs, series, path, xlabel, ylabel, title='', logx=False):
