@@ -210,7 +210,10 @@ def driver_series(q, i_cmd):
     return coil, field
 
 
-def _dynamics(block, name):
+def fitted_dynamics(block, name='current_dynamics'):
+    """Return ``{dead_time, tau_rise, tau_fall}`` of a fitted-model block, checked (>= 0)."""
+    if not isinstance(block, dict):
+        raise ValueError(f'fitted model {name}: expected a mapping')
     out = {}
     for k in ('dead_time', 'tau_rise', 'tau_fall'):
         try:
@@ -233,11 +236,11 @@ def from_fitted_model(model, base=None):
     """
     if not isinstance(model, dict) or 'current_dynamics' not in model:
         raise ValueError('fitted model: no "current_dynamics" block')
-    dyn = _dynamics(model['current_dynamics'], 'current_dynamics')
+    dyn = fitted_dynamics(model['current_dynamics'])
     base = base or DriverParams()
     drv = model.get('driver')
     if model.get('input', {}).get('signal') == 'current' and drv:
-        drv = _dynamics(drv, 'driver')
+        drv = fitted_dynamics(drv, 'driver')
         return replace(base, tau_rise=drv['tau_rise'], tau_fall=drv['tau_fall'],
                        dead_time=min(drv['dead_time'] + dyn['dead_time'], 0.25),
                        fluid_tau_rise=dyn['tau_rise'], fluid_tau_fall=dyn['tau_fall'])

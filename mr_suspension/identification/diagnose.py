@@ -255,6 +255,14 @@ def _children(ds, chosen, candidates, current, tick):
     return pool
 
 
+def _symmetric_lag_fit(ds, fit):
+    """Refit ``fit`` with one lag (the geometric mean of its rise/fall) instead of two."""
+    eta = dict(fit.eta)
+    eta['tau_lag'] = float(np.sqrt(max(eta['tau_rise'], 1e-4) * max(eta['tau_fall'], 1e-4)))
+    down = tuple('current_lag' if c == 'current_lag_asymmetric' else c for c in fit.effects)
+    return engine.fit(ds, down, start_eta=eta, start_theta=fit.theta, new=('current_lag',))
+
+
 def _step_record(chosen, stats):
     out = {}
     for e, s in stats.items():
@@ -422,23 +430,11 @@ def run(records, effects=engine.EFFECTS, n_folds=5, progress=None, search_rate=S
             clear = True
             if 'current_lag_asymmetric' in chosen:
                 # How much rise != fall pays in the final model at the search rate.
-                eta = dict(final_search.eta)
-                eta['tau_lag'] = float(np.sqrt(max(eta['tau_rise'], 1e-4)
-                                               * max(eta['tau_fall'], 1e-4)))
-                down = tuple('current_lag' if c == 'current_lag_asymmetric' else c
-                             for c in final_search.effects)
-                sub = engine.fit(ds_search, down, start_eta=eta, start_theta=final_search.theta,
-                                 new=('current_lag',))
+                sub = _symmetric_lag_fit(ds_search, final_search)
                 clear = fold_stats(final_search.test, sub.test)[0] >= CLEAR_LOSS
             if 'current_lag_asymmetric' in chosen and not clear:
                 # Nested check at the full rate: keep rise != fall only if it pays.
-                eta = dict(final.eta)
-                eta['tau_lag'] = float(np.sqrt(max(eta['tau_rise'], 1e-4)
-                                               * max(eta['tau_fall'], 1e-4)))
-                down = tuple('current_lag' if c == 'current_lag_asymmetric' else c
-                             for c in final.effects)
-                sub = engine.fit(ds, down, start_eta=eta, start_theta=final.theta,
-                                 new=('current_lag',))
+                sub = _symmetric_lag_fit(ds, final)
                 tick('symmetric lag (full rate)')
                 if not accepted(final.test, sub.test):
                     chosen = ['current_lag' if c == 'current_lag_asymmetric' else c

@@ -16,8 +16,7 @@ The current dynamics map onto ``core.driver.DriverParams`` (``tau_rise``, ``tau_
 import json
 from pathlib import Path
 
-import numpy as np
-
+from mr_suspension.core.driver import fitted_dynamics
 from mr_suspension.core.extended import ExtendedDamperParams
 from mr_suspension.identification import engine
 
@@ -45,18 +44,6 @@ def save_model(path, model):
     Path(path).write_text(json.dumps(model, indent=2) + '\n')
 
 
-def _check_dyn(dyn):
-    out = {}
-    for k in ('dead_time', 'tau_rise', 'tau_fall'):
-        if k not in dyn:
-            raise ValueError(f'model current_dynamics: missing {k}')
-        val = float(dyn[k])
-        if not np.isfinite(val) or val < 0:
-            raise ValueError(f'model current_dynamics: {k} must be finite and >= 0, got {val}')
-        out[k] = val
-    return out
-
-
 def load_model(path):
     """Read and validate a ``model.json``; return the dictionary."""
     try:
@@ -68,7 +55,7 @@ def load_model(path):
     if model['damper'].get('law') != 'extended':
         raise ValueError(f'{path}: damper law must be "extended"')
     ExtendedDamperParams.from_dict(model['damper'])
-    _check_dyn(model.get('current_dynamics', {}))
+    fitted_dynamics(model.get('current_dynamics', {}))
     return model
 
 
@@ -76,7 +63,7 @@ def load_fitted_model(path):
     """Return ``(ExtendedDamperParams, current_dynamics dict)`` from a ``model.json``."""
     model = load_model(path)
     return (ExtendedDamperParams.from_dict(model['damper']),
-            _check_dyn(model['current_dynamics']))
+            fitted_dynamics(model['current_dynamics']))
 
 
 def fitted_driver(path, base=None):
@@ -93,4 +80,4 @@ def fitted_driver(path, base=None):
 def predict(model, record):
     """Force [N] predicted by a model dictionary on a record (same path as the fit)."""
     params = ExtendedDamperParams.from_dict(model['damper'])
-    return engine.simulate(record, params, _check_dyn(model['current_dynamics']))
+    return engine.simulate(record, params, fitted_dynamics(model['current_dynamics']))
