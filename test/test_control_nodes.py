@@ -1,9 +1,10 @@
 """Every control law through the node set in lock-step against the offline simulator.
 
-The plant, controller and actuator nodes run in one executor in lock-step; the controller node
-sees only the sensors (accelerations with gravity removed, stroke, coil current) and the control
-core estimates the velocities. The offline simulator runs the same corner configuration, so the
-ride figures must agree to round-off for every law (laws with internal estimator state included).
+The plant, controller and actuator nodes run in one executor in exact lock-step (coupling delay
+0: the simulator's step order); the controller node sees only the sensors (accelerations with
+gravity removed, stroke, coil current) and the control core estimates the velocities. The
+offline simulator runs the same corner configuration, so the ride figures must agree to
+round-off for every law (laws with internal estimator state included).
 """
 
 import pytest
@@ -25,7 +26,7 @@ def test_every_law_has_a_set():
 
 @pytest.mark.parametrize('controller', SETS)
 def test_law_through_node_set_matches_offline(controller):
-    nodes, _ = run_in_process(ROAD, DURATION, controller, True)
+    nodes, _ = run_in_process(ROAD, DURATION, controller, True, coupling_delay=0)
     offline = offline_summary(corner_config(controller=controller), ROAD, DURATION)
     for key, diff in agreement(nodes, offline).items():
         assert abs(diff) < 1e-6, (controller, key, diff)

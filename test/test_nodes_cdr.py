@@ -36,3 +36,61 @@ def test_readers_match_rclpy():
         value = rng.uniform(-5, 5)
         assert cdr.float64(serialize_message(Float64(data=value))) == value
     assert math.isnan(cdr.float64(serialize_message(Float64(data=math.nan))))
+
+
+def test_template_bytes_are_exact_cdr():
+    """Patched templates equal rosbags' serialization and read back in rclpy and rosbags."""
+    from rclpy.serialization import deserialize_message
+    from rosgraph_msgs.msg import Clock
+    store = cdr.typestore()
+    rng = random.Random(5)
+    imu = Imu()
+    imu.header.frame_id = 'body_imu'
+    imu.orientation_covariance[0] = -1.0
+    js = JointState()
+    js.header.frame_id = 'world'
+    js.name = ['body', 'wheel', 'road', 'suspension']
+    js.position = [0.0] * 4
+    js.velocity = [0.0] * 4
+    stroke = JointState()
+    stroke.name = ['suspension_stroke']
+    stroke.position = [0.0]
+    t_imu = cdr.Template(imu, ('linear_acceleration.z',))
+    slots = [f'position[{i}]' for i in range(4)] + [f'velocity[{i}]' for i in range(4)]
+    t_js = cdr.Template(js, slots)
+    t_stroke = cdr.Template(stroke, ('position[0]',))
+    t_f = cdr.Template(Float64(), ('data',), stamped=False)
+    t_clock = cdr.Template(Clock(), (), stamped=True)
+    for _ in range(100):
+        ns = rng.randint(0, (2 ** 31 - 1) * 1_000_000_000)
+        sec, nsec = divmod(ns, 1_000_000_000)
+        az = rng.uniform(-100, 100)
+        imu.header.stamp.sec, imu.header.stamp.nanosec = sec, nsec
+        imu.linear_acceleration.z = az
+        raw = t_imu.pack(ns, az)
+        assert raw == cdr.serialize(imu)
+        assert deserialize_message(raw, Imu) == imu
+        assert cdr.imu_acc_z(raw) == (ns, az)
+        values = [rng.uniform(-1, 1) for _ in range(8)]
+        js.header.stamp.sec, js.header.stamp.nanosec = sec, nsec
+        js.position, js.velocity = values[:4], values[4:]
+        raw = t_js.pack(ns, *values)
+        assert raw == cdr.serialize(js)
+        assert deserialize_message(raw, JointState) == js
+        assert cdr.joint_state(raw) == (ns, values[:4], values[4:], [])
+        read = store.deserialize_cdr(raw, 'sensor_msgs/msg/JointState')
+        assert list(read.position) == values[:4] and read.name == js.name
+        raw = t_stroke.pack(ns, az)
+        assert store.deserialize_cdr(raw, 'sensor_msgs/msg/JointState').position[0] == az
+        assert cdr.float64(t_f.pack(0, az)) == az
+        assert deserialize_message(t_f.pack(0, az), Float64).data == az
+        clock = deserialize_message(t_clock.pack(ns), Clock)
+        assert (clock.clock.sec, clock.clock.nanosec) == (sec, nsec)
+
+
+def test_template_rejects_unknown_or_missing_slots():
+    import pytest
+    with pytest.raises(AttributeError):
+        cdr.Template(Imu(), ('linear_acceleration.w',))
+    with pytest.raises(IndexError):
+        cdr.Template(JointState(), ('position[0]',))

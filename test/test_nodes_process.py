@@ -14,10 +14,13 @@ from mr_suspension.nodes.launch import _env, run_node_set
 ROAD = '{type: bump, height: 0.05, length: 2.0, speed: 10.0}'
 
 
-@pytest.mark.parametrize('lockstep', [True, False])
-def test_node_set_processes_agree_with_offline(tmp_path, lockstep):
+@pytest.mark.parametrize('lockstep, delay, tol', [(True, 0, 1e-6), (True, 1, 2.0),
+                                                  (False, None, 2.0)])
+def test_node_set_processes_agree_with_offline(tmp_path, lockstep, delay, tol):
+    """Exact lock-step to round-off; one-sample coupling and real time within 2 %."""
+    extra = {'plant': {'coupling_delay': delay}} if lockstep else None
     res = run_node_set(tmp_path / 'run', duration=1.0, road=ROAD, controller='passive_1A',
-                       lockstep=lockstep, timeout=90.0)
+                       lockstep=lockstep, timeout=90.0, extra=extra)
     assert res['returncodes'] == {'recorder': 0, 'controller': 0, 'actuator': 0, 'plant': 0}
     counts = res['summary']['counts']
     published = res['stats']['plant']['published']
@@ -30,7 +33,7 @@ def test_node_set_processes_agree_with_offline(tmp_path, lockstep):
     print('lockstep' if lockstep else 'realtime', res['agreement'],
           res['stats']['plant'].get('steps_per_s'))
     for key, diff in res['agreement'].items():
-        assert abs(diff) < (1e-6 if lockstep else 2.0), (key, diff)
+        assert abs(diff) < tol, (key, diff)
 
 
 def test_recorder_closes_bag_on_sigterm(tmp_path):

@@ -62,6 +62,15 @@ class ControllerStepper:
         m[laws.M_STROKE_RATE], m[laws.M_VEL_S], m[laws.M_VEL_U] = velocities
         return float(laws.controller_step(self.cid, self.cp, self.cs, m, self.dt))
 
+    def warm_up(self):
+        """Compile (or load from cache) the jitted law on scratch state; return self.
+
+        A node calls this before it joins the graph, so that its first samples are not late.
+        """
+        laws.controller_step(self.cid, self.cp, self.cs.copy(), np.zeros_like(self.m),
+                             self.dt)
+        return self
+
 
 class ActuatorStepper:
     """Current driver (Wonder Box), fluid and MR damper one step at a time.
@@ -112,6 +121,15 @@ class ActuatorStepper:
         """Second half of a step: feed this step's command into the driver."""
         drv.driver_input(self.drv_p, self.drv_s,
                          drv.clip_command(self.drv_p, self._delayed(i_cmd)))
+
+    def warm_up(self):
+        """Compile (or load from cache) the driver and damper functions on scratch state."""
+        drv_s, ds = self.drv_s.copy(), self.ds.copy()
+        drv.driver_output(self.drv_p, drv_s)
+        drv.driver_input(self.drv_p, drv_s, drv.clip_command(self.drv_p, 0.0))
+        drv.driver_step(self.drv_p, drv_s, 0.0)
+        dmp.damper_force(self.law, self.dp, ds, 0.0, 0.0, 0.0, self.dt)
+        return self
 
     def step(self, i_cmd, x, v):
         """Return (coil current, field current, damper force, dF/dv) for one sample."""
@@ -182,6 +200,11 @@ class PlantStepper:
         """
         return f_m + c_m * (self.stroke_rate - v_m)
 
+    def warm_up(self):
+        """Compile (or load from cache) the jitted plant step on scratch state; return self."""
+        qc.plant_step(self.car_p, self.q.copy(), 0.0, 0.0, 0.0, 0.0, self.dt)
+        return self
+
     def step(self, f_d, c_d):
         """Advance one step with damper force ``f_d`` [N] and tangent ``c_d`` [N s/m]."""
         k = self.k
@@ -195,6 +218,7 @@ class PlantStepper:
         self.f_t = float(f_t)
         self.f_d = float(f_d)
         self.k = k + 1
-        if not np.all(np.isfinite(self.q)):
+        if not math.isfinite(self.a_s + self.a_u + self.q[0] + self.q[1] + self.q[2]
+                             + self.q[3]):
             raise FloatingPointError('plant diverged (non-finite state); check parameters')
         return self.a_s, self.a_u, self.f_t

@@ -62,7 +62,7 @@ class ActuatorNode(Node):
                                                  'as JSON here on exit ("" = off)'))
         if self.current_min > self.current_max:
             raise ValueError('actuator: current_min must be <= current_max')
-        self.stepper = ActuatorStepper(self.config)
+        self.stepper = ActuatorStepper(self.config).warm_up()
         self.finished = threading.Event()
         self.pub_force = self.create_publisher(JointState, c.DAMPER_FORCE,
                                                common.qos(c.DAMPER_FORCE, self.lockstep))
@@ -71,22 +71,31 @@ class ActuatorNode(Node):
         # Serialized messages (raw=True), read with the fast CDR readers.
         self.create_subscription(Float64, c.CURRENT_COMMAND, self._on_command,
                                  common.qos(c.CURRENT_COMMAND, self.lockstep), raw=True)
-        self.create_subscription(JointState, c.TRUTH_STATE, self._on_motion,
-                                 common.qos(c.TRUTH_STATE, self.lockstep), raw=True)
+        self.create_subscription(
+            JointState, c.TRUTH_STATE, self._on_motion,
+            common.qos(c.TRUTH_STATE, self.lockstep, loop_reader=True), raw=True)
         self.gate = None
         if self.lockstep:
             self.gate = common.MatchGate(self, [(self.pub_force, 1 + recorders),
                                                 (self.pub_coil, 1 + recorders)],
                                          self._run_lockstep)
-        self.msg_force = JointState()
-        self.msg_force.header.frame_id = c.FRAME_SUSPENSION
-        self.msg_force.name = list(c.JOINTS_DAMPER)
-        self.msg_coil = Float64()
+        force = JointState()
+        force.header.frame_id = c.FRAME_SUSPENSION
+        force.name = list(c.JOINTS_DAMPER)
+        force.position = [0.0, 0.0]
+        force.velocity = [0.0, 0.0]
+        force.effort = [0.0, 0.0]
+        self.tpl_force = cdr.Template(force, ('position[0]', 'velocity[0]', 'effort[0]',
+                                              'effort[1]'))
+        self.tpl_coil = cdr.Template(Float64(), ('data',), stamped=False)
         self.command = self.safe_current
         self.command_time = -math.inf
         self.have_command = False
         self.commands = deque()
-        self.motions = deque()
+        self.motions = {}  # lock-step: stamp -> motion sample not answered yet
+        self.dt_ns = int(round(self.config.dt * 1e9))
+        self.answers = {}
+        self.n_repeated = 0
         self.forces_done = 0
         self.commands_done = 0
         self.n_rejected = 0
@@ -132,17 +141,26 @@ class ActuatorNode(Node):
             self.get_logger().error('actuator: truth/state without the suspension joint',
                                     throttle_duration_sec=1.0)
             return
-        self.n_motion += 1
         self.last_input = time.monotonic()
         if not self.stats.marked:
             self.stats.mark()
         motion = (stamp, position[SUSPENSION], velocity[SUSPENSION])
         if self.lockstep:
-            self.motions.append(motion)
+            if not common.check_grid(self, stamp, self.dt_ns):
+                return
+            if stamp < self.forces_done * self.dt_ns or stamp in self.motions:
+                # A sample the plant re-sent after a stall: answer again if answered.
+                self.n_repeated += 1
+                if stamp in self.answers:
+                    self.pub_force.publish(self.answers[stamp])
+                return
+            self.n_motion += 1
+            self.motions[stamp] = motion
             self._run_lockstep()
             return
         # Real time: answer at once with the newest command, so the force is back at the plant
         # before its next step (the command is then normally one sample old).
+        self.n_motion += 1
         self._apply(self._current_now(), motion)
 
     def _current_now(self):
@@ -153,9 +171,13 @@ class ActuatorNode(Node):
     def _run_lockstep(self):
         if not self.gate.check():
             return
+        # Samples in order of their stamps k dt: a gap (a sample lost on the best-effort link
+        # and re-sent by the plant) is waited for.
         if not self.stepper.command_ahead:
-            while self.commands and self.motions:
-                self._apply(self.commands.popleft(), self.motions.popleft())
+            while self.commands and self.forces_done * self.dt_ns in self.motions:
+                self._apply(self.commands.popleft(),
+                            self.motions.pop(self.forces_done * self.dt_ns))
+                self.forces_done += 1
             return
         # The driver's dead time makes force k independent of command k: answer the plant as
         # soon as motion k is in (command k-1 applied), then take command k. The controller
@@ -163,8 +185,9 @@ class ActuatorNode(Node):
         progress = True
         while progress:
             progress = False
-            if self.forces_done == self.commands_done and self.motions:
-                stamp, x, v = self._checked(self.motions.popleft())
+            due = self.forces_done * self.dt_ns
+            if self.forces_done == self.commands_done and due in self.motions:
+                stamp, x, v = self._checked(self.motions.pop(due))
                 self._publish(stamp, x, v, *self.stepper.force(x, v))
                 self.forces_done += 1
                 progress = True
@@ -186,15 +209,14 @@ class ActuatorNode(Node):
         self._publish(stamp, x, v, *self.stepper.step(i_cmd, x, v))
 
     def _publish(self, stamp, x, v, coil, _field, force, tangent):
-        m = self.msg_force
-        common.set_stamp(m.header, stamp)
-        m.position = [x, 0.0]
-        m.velocity = [v, 0.0]
-        m.effort = [force, tangent]
-        self.pub_force.publish(m)
+        raw = self.tpl_force.pack(stamp, x, v, force, tangent)
+        self.pub_force.publish(raw)
+        if self.lockstep:
+            self.answers[stamp] = raw
+            if len(self.answers) > 32:
+                del self.answers[next(iter(self.answers))]
         self.n_forces += 1
-        self.msg_coil.data = coil
-        self.pub_coil.publish(self.msg_coil)
+        self.pub_coil.publish(self.tpl_coil.pack(0, coil))
 
     def drain(self, executor):
         """On shutdown, handle the messages still queued (clean statistics)."""
@@ -204,6 +226,7 @@ class ActuatorNode(Node):
         """Write the statistics file."""
         self.stats.data.update(commands=self.n_commands, commands_after_start=self.n_commands_run,
                                forces_published=self.n_forces, motion_samples=self.n_motion,
+                               repeated_motion=self.n_repeated,
                                rejected=self.n_rejected, clamped=self.n_clamped)
         self.stats.write()
 

@@ -8,10 +8,14 @@ Anything else (big-endian or XCDR2 encapsulation) falls back to ``rclpy``'s dese
 readers are always correct; ``test/test_nodes_cdr.py`` checks them against it.
 """
 
+import array
+import functools
 import math
 import struct
 
+import numpy as np
 from rclpy.serialization import deserialize_message
+from rosbags.typesys import get_typestore, Stores
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64
 
@@ -83,3 +87,116 @@ def float64(raw):
     if len(raw) < 12:
         return math.nan
     return _D.unpack_from(raw, 4)[0]
+
+
+@functools.lru_cache(maxsize=None)
+def typestore():
+    """Return the rosbags type store matching this ROS distribution (Kilted), built once."""
+    return get_typestore(Stores.ROS2_KILTED)
+
+
+def serialize(msg, store=None):
+    """Serialize an ``rclpy`` message to CDR with ``rosbags`` (exact length, zero padding).
+
+    ``rclpy.serialization.serialize_message`` is not used for templates: with Fast DDS it
+    returns the type's size estimate, with trailing and padding bytes left uninitialised,
+    which strict readers (``rosbags``) reject.
+    """
+    store = store or typestore()
+    return bytes(store.serialize_cdr(_to_rosbags(store, msg), _msgtype(msg)))
+
+
+def _msgtype(msg):
+    return f'{type(msg).__module__.split(".")[0]}/msg/{type(msg).__name__}'
+
+
+def _to_rosbags(store, msg):
+    """Copy an ``rclpy`` message into the matching ``rosbags`` dataclass."""
+    kwargs = {}
+    for name in msg.get_fields_and_field_types():
+        value = getattr(msg, name)
+        if hasattr(value, 'get_fields_and_field_types'):
+            value = _to_rosbags(store, value)
+        elif isinstance(value, list) and value and hasattr(value[0],
+                                                           'get_fields_and_field_types'):
+            value = [_to_rosbags(store, v) for v in value]
+        elif isinstance(value, (array.array, np.ndarray)):
+            value = np.asarray(value)
+        kwargs[name] = value
+    return store.types[_msgtype(msg)](**kwargs)
+
+
+class Template:
+    """A serialized message whose stamp and float64 fields are rewritten in place per sample.
+
+    Publishing a message object costs ``rclpy`` a conversion to C and a serialization per call
+    (about 27 us for an ``Imu`` on the target machine, 11 us for the same bytes published raw).
+    A template serializes ``msg`` once (:func:`serialize`); ``slots`` name its float64 fields
+    (``'data'``, ``'linear_acceleration.z'``, ``'position[3]'``) whose byte offsets are found by
+    serializing the message with a distinct sentinel in each. :meth:`pack` writes the stamp (the
+    ``builtin_interfaces/Time`` the message starts with, if ``stamped``) and the values and
+    returns the bytes to publish. Sequence lengths and strings stay as they are in ``msg``.
+    ``test/test_nodes_cdr.py`` checks the bytes against ``rosbags`` and ``rclpy``.
+    """
+
+    def __init__(self, msg, slots=(), stamped=True):
+        self.slots = tuple(slots)
+        self.stamped = stamped
+        store = typestore()
+        base = serialize(msg, store)
+        offsets = []
+        for i, slot in enumerate(self.slots):
+            old = _get(msg, slot)
+            sentinel = -1.0e-300 * (1.0 + 1.0e-3 * i) - 3.0e-301
+            _set(msg, slot, sentinel)
+            raw = serialize(msg, store)
+            _set(msg, slot, old)
+            pattern = _D.pack(sentinel)
+            at = raw.find(pattern)
+            if at < 0 or raw.find(pattern, at + 1) >= 0 or len(raw) != len(base):
+                raise ValueError(f'cdr.Template: cannot place slot {slot!r}')
+            offsets.append(at)
+        self.offsets = tuple(offsets)
+        self.buffer = bytearray(base)
+
+    def pack(self, stamp_ns, *values):
+        """Return the serialized message with this stamp [ns] and slot values."""
+        buf = self.buffer
+        if self.stamped:
+            sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+            _STAMP.pack_into(buf, 4, sec, nsec)
+        for at, value in zip(self.offsets, values):
+            _D.pack_into(buf, at, value)
+        return bytes(buf)
+
+
+_STAMP = struct.Struct('<iI')
+
+
+def _path(slot):
+    """Split ``'a.b[2]'`` into (['a', 'b'], 2) (index None without brackets)."""
+    name, _, index = slot.partition('[')
+    return name.split('.'), (int(index.rstrip(']')) if index else None)
+
+
+def _owner(msg, names):
+    for name in names[:-1]:
+        msg = getattr(msg, name)
+    return msg
+
+
+def _get(msg, slot):
+    names, index = _path(slot)
+    value = getattr(_owner(msg, names), names[-1])
+    return value if index is None else value[index]
+
+
+def _set(msg, slot, value):
+    names, index = _path(slot)
+    owner = _owner(msg, names)
+    if index is None:
+        setattr(owner, names[-1], value)
+    else:
+        seq = list(getattr(owner, names[-1]))
+        seq[index] = value
+        setattr(owner, names[-1], seq)

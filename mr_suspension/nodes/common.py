@@ -36,17 +36,27 @@ def ensure_environment():
         os.environ['AMENT_PREFIX_PATH'] = os.pathsep.join([prefix] + parts)
 
 
-def qos(topic, lockstep=False):
+def qos(topic, lockstep=False, loop_reader=False):
     """Return the QoS profile of a contract topic: reliable, keep-last ``depth``.
 
     Volatile in real time (matches any reliable publisher, e.g. a sensor driver); transient
     local in lock-step, so that a message sent before discovery has matched a publisher with a
     subscriber is still delivered (a lost message would stall the lock-step loop).
+
+    ``loop_reader``: a lock-step subscription on a stamped link of the plant-actuator-controller
+    loop (sensors, ``truth/state``, ``damper/force``) is best effort instead. A reliable reader
+    costs the writer a timer notification and acknowledgement traffic per sample, about 15 % of
+    the loop's CPU; the loop instead recovers a lost sample itself: the plant re-sends the
+    samples it waits on after ``resend_after`` and every node answers a repeated stamp
+    idempotently (:mod:`mr_suspension.nodes.plant`). Writers stay reliable, so recorders keep
+    reliable delivery.
     """
     t = contract.TOPICS[topic]
     rel = ReliabilityPolicy.RELIABLE if t.reliability == 'reliable' \
         else ReliabilityPolicy.BEST_EFFORT
     dur = DurabilityPolicy.TRANSIENT_LOCAL if lockstep else DurabilityPolicy.VOLATILE
+    if lockstep and loop_reader:
+        rel, dur = ReliabilityPolicy.BEST_EFFORT, DurabilityPolicy.VOLATILE
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=t.depth, reliability=rel,
                       durability=dur)
 
@@ -153,6 +163,16 @@ def set_stamp(header, ns):
     """Write integer nanoseconds into a header stamp."""
     header.stamp.sec = int(ns // 1_000_000_000)
     header.stamp.nanosec = int(ns % 1_000_000_000)
+
+
+def check_grid(node, stamp, dt_ns):
+    """Lock-step: log an error if ``stamp`` is not a multiple of the step (rates disagree)."""
+    if stamp % dt_ns:
+        node.get_logger().error(
+            f'{node.get_name()}: stamp {stamp} ns is not on the {dt_ns} ns step grid; do all '
+            'nodes use the same rate?', throttle_duration_sec=5.0)
+        return False
+    return True
 
 
 def finite(*values):

@@ -19,6 +19,7 @@ command).
   run is deterministic; no watchdog (the plant waits for the loop).
 """
 
+from collections import deque
 import math
 import threading
 import time
@@ -58,7 +59,7 @@ class ControllerNode(Node):
                                    'current_command before the first command', 0, 10)
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
                                                  'as JSON here on exit ("" = off)'))
-        self.stepper = ControllerStepper(self.config)
+        self.stepper = ControllerStepper(self.config).warm_up()
         self.finished = threading.Event()
         self.pub_cmd = self.create_publisher(Float64, c.CURRENT_COMMAND,
                                              common.qos(c.CURRENT_COMMAND, self.lockstep))
@@ -68,15 +69,17 @@ class ControllerNode(Node):
         for topic, cls, cb in ((c.IMU_BODY, Imu, self._on_imu_s),
                                (c.IMU_WHEEL, Imu, self._on_imu_u),
                                (c.STROKE, JointState, self._on_stroke)):
-            self.create_subscription(cls, topic, cb, common.qos(topic, self.lockstep),
+            self.create_subscription(cls, topic, cb,
+                                     common.qos(topic, self.lockstep, loop_reader=True),
                                      qos_overriding_options=over, raw=True)
         self.create_subscription(Float64, c.COIL_CURRENT, self._on_coil,
                                  common.qos(c.COIL_CURRENT, self.lockstep), raw=True)
-        self.msg = Float64()
+        self.tpl_cmd = cdr.Template(Float64(), ('data',), stamped=False)
         # Newest value and monotonic arrival time per sensor.
         self.latest = {c.IMU_BODY: None, c.IMU_WHEEL: None, c.STROKE: None}
         self.arrival = dict.fromkeys(self.latest, -math.inf)
-        self.coil = []
+        self.coil = deque()  # lock-step: coil current k - 1 for the command of sample k
+        self.dt_ns = int(round(self.config.dt * 1e9))
         self.coil_latest = math.nan
         self.pending = {}
         self.k = 0
@@ -108,6 +111,9 @@ class ControllerNode(Node):
             return
         self.latest[topic] = value
         self.arrival[topic] = time.monotonic()
+        if self.lockstep and (stamp < self.k * self.dt_ns
+                              or not common.check_grid(self, stamp, self.dt_ns)):
+            return  # lock-step: a sample the plant re-sent after a stall, already controlled
         if self.lockstep or self.trigger == 'sample':
             self.pending.setdefault(stamp, {})[topic] = value
             self._run_samples()
@@ -156,8 +162,7 @@ class ControllerNode(Node):
             self.fallback = False
             self.last_law = time.monotonic()
             i_cmd = self.stepper.step(acc_s, acc_u, x, field)
-        self.msg.data = float(i_cmd)
-        self.pub_cmd.publish(self.msg)
+        self.pub_cmd.publish(self.tpl_cmd.pack(0, float(i_cmd)))
         self.n_cmd += 1
         if self.stats.marked:
             self.n_cmd_run += 1
@@ -186,17 +191,19 @@ class ControllerNode(Node):
         if self.gate is not None and not self.gate.check():
             return
         while self.pending:
-            key = min(self.pending)
-            sample = self.pending[key]
+            # Lock-step: the samples in order of their stamps k dt (a gap, a sample lost on the
+            # best-effort link and re-sent by the plant, is waited for).
+            key = self.k * self.dt_ns if self.lockstep else min(self.pending)
+            sample = self.pending.get(key, ())
             if len(sample) < 3:
                 if self.lockstep or len(self.pending) < 8:
                     return
                 del self.pending[key]  # real time: a sample never completed (message lost)
                 continue
             if self.lockstep:
-                if len(self.coil) < self.k:
+                if self.k > 0 and not self.coil:
                     return
-                field = self.coil[self.k - 1] if self.k > 0 else math.nan
+                field = self.coil.popleft() if self.k > 0 else math.nan
             else:
                 field = self.coil_latest
             del self.pending[key]

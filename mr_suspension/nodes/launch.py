@@ -68,7 +68,7 @@ def offline_summary(config, road_spec, duration):
 
 def read_bag(path):
     """Return ``{topic: (log_times_ns, [deserialized messages])}`` of a bag (empty -> error)."""
-    from mr_suspension.nodes.recorder import typestore
+    from mr_suspension.nodes.cdr import typestore
     store = typestore()
     out = {}
     with Reader(path) as reader:

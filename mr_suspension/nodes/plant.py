@@ -81,6 +81,14 @@ class PlantNode(Node):
         self.max_force_age = common.declare(
             self, d, 'max_force_age', 'Real time: oldest damper force (in samples) a step may '
             'use; 1 keeps the one-sample coupling, more keeps the rate on a slow machine', 1, 10)
+        self.coupling_delay = common.declare(
+            self, d, 'coupling_delay', 'Lock-step: step k -> k+1 uses the damper force of '
+            'sample k - coupling_delay moved along its tangent (0 = wait for force k: the '
+            'offline simulator exactly; 1 or more lets plant and actuator run concurrently)',
+            0, 10)
+        self.resend_after = common.declare(
+            self, d, 'resend_after', 'Lock-step: re-send the samples the loop waits on after '
+            'this long without a step (recovers a lost sample) [s]', 0.001, 10.0)
         self.force_wait = common.declare(self, d, 'force_wait', 'Real time: longest wait for '
                                          'the damper force of a due step before stepping with '
                                          'the previous force [s]', 0.0, 0.1)
@@ -88,7 +96,7 @@ class PlantNode(Node):
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
                                                  'as JSON here on exit ("" = off)'))
         self.road = rd.from_spec(parse_road(spec), duration=duration, dt=self.config.dt)
-        self.plant = PlantStepper(self.config, self.road)
+        self.plant = PlantStepper(self.config, self.road).warm_up()
         self.dt_ns = int(round(self.config.dt * 1e9))
         self.finished = threading.Event()
 
@@ -100,14 +108,22 @@ class PlantNode(Node):
                                                common.qos(c.TRUTH_STATE, self.lockstep))
         self.pub_tyre = self.create_publisher(Float64, c.TRUTH_TYRE_FORCE,
                                               common.qos(c.TRUTH_TYRE_FORCE, self.lockstep))
+        # The loop's stamped links, in publishing order (the damper motion first).
+        self.loop_pubs = (self.pub_truth, self.pub_imu_s, self.pub_imu_u, self.pub_stroke)
         self.pub_clock = None
         if self.lockstep and self.publish_clock:
             self.pub_clock = self.create_publisher(Clock, c.CLOCK, common.qos(c.CLOCK, ls))
-        self.sub_force = self.create_subscription(JointState, c.DAMPER_FORCE, self._on_force,
-                                                  common.qos(c.DAMPER_FORCE, ls), raw=True)
+        self.sub_force = self.create_subscription(
+            JointState, c.DAMPER_FORCE, self._on_force,
+            common.qos(c.DAMPER_FORCE, ls, loop_reader=True), raw=True)
         self._init_messages()
         # Newest damper force: (sample index, force, tangent, stroke rate it was evaluated at).
         self.force = None
+        self.forces = {}
+        self.sent = {}
+        self.n_duplicates = 0
+        self.n_resends = 0
+        self.resend_mark = (-1, time.monotonic())
         self.started = False
         self.stamp_k = {}
         self.last_stamp = 0
@@ -127,26 +143,37 @@ class PlantNode(Node):
         self.progress = (-1, time.monotonic())
         self.watchdog = self.create_timer(1.0, self._check_progress)
         self.step_timer = None
+        if self.lockstep:
+            self.create_timer(min(0.5 * self.resend_after, 0.02), self._resend)
         self.get_logger().info(
             f'plant: {self.road.name}, {self.road.n_steps} steps of {self.config.dt * 1e3:g} ms, '
             f'{"lock-step" if self.lockstep else "real time"}')
 
     def _init_messages(self):
-        self.msg_imu_s = Imu()
-        self.msg_imu_s.header.frame_id = c.FRAME_BODY_IMU
-        self.msg_imu_u = Imu()
-        self.msg_imu_u.header.frame_id = c.FRAME_WHEEL_IMU
-        for m in (self.msg_imu_s, self.msg_imu_u):
+        """Build serialized templates of the published messages (:class:`cdr.Template`)."""
+        imu_s, imu_u = Imu(), Imu()
+        imu_s.header.frame_id = c.FRAME_BODY_IMU
+        imu_u.header.frame_id = c.FRAME_WHEEL_IMU
+        for m in (imu_s, imu_u):
             m.orientation_covariance[0] = -1.0
             m.angular_velocity_covariance[0] = -1.0
-        self.msg_stroke = JointState()
-        self.msg_stroke.header.frame_id = c.FRAME_SUSPENSION
-        self.msg_stroke.name = [c.JOINT_STROKE]
-        self.msg_truth = JointState()
-        self.msg_truth.header.frame_id = c.FRAME_WORLD
-        self.msg_truth.name = list(c.JOINTS_TRUTH)
-        self.msg_tyre = Float64()
-        self.msg_clock = Clock()
+        stroke = JointState()
+        stroke.header.frame_id = c.FRAME_SUSPENSION
+        stroke.name = [c.JOINT_STROKE]
+        stroke.position = [0.0]
+        truth = JointState()
+        truth.header.frame_id = c.FRAME_WORLD
+        truth.name = list(c.JOINTS_TRUTH)
+        truth.position = [0.0] * len(c.JOINTS_TRUTH)
+        truth.velocity = [0.0] * len(c.JOINTS_TRUTH)
+        n = len(c.JOINTS_TRUTH)
+        self.tpl_imu_s = cdr.Template(imu_s, ('linear_acceleration.z',))
+        self.tpl_imu_u = cdr.Template(imu_u, ('linear_acceleration.z',))
+        self.tpl_stroke = cdr.Template(stroke, ('position[0]',))
+        self.tpl_truth = cdr.Template(truth, [f'position[{i}]' for i in range(n)]
+                                      + [f'velocity[{i}]' for i in range(n)])
+        self.tpl_tyre = cdr.Template(Float64(), ('data',), stamped=False)
+        self.tpl_clock = cdr.Template(Clock(), ())
 
     # -- start-up --------------------------------------------------------------------------
 
@@ -218,36 +245,26 @@ class PlantNode(Node):
             if len(self.stamp_k) > 4096:
                 for key in list(self.stamp_k)[:2048]:
                     del self.stamp_k[key]
-        for m in (self.msg_imu_s, self.msg_imu_u, self.msg_stroke, self.msg_truth):
-            common.set_stamp(m.header, ns)
-        self.msg_imu_s.linear_acceleration.z = p.a_s + self.gravity
-        self.msg_imu_u.linear_acceleration.z = p.a_u + self.gravity
         x = p.stroke
         v = p.stroke_rate
         z_r, zr_dot = p.road_now()
         q = p.q
-        self.msg_stroke.position = [x]
-        self.msg_truth.position = [float(q[0]), float(q[1]), z_r, x]
-        self.msg_truth.velocity = [float(q[2]), float(q[3]), zr_dot, v]
-        self.msg_tyre.data = p.f_t
         self.pub_wall[p.k] = time.monotonic()
-        # Lock-step: the controller's sensors lead the critical path (controller, then actuator).
-        # Real time: the damper motion first, the force comes back at once; then the sensors.
+        # The damper motion first (the actuator answers it at once; in lock-step it is the
+        # critical path), then the sensors, the tyre force and the clock.
+        raws = (self.tpl_truth.pack(ns, float(q[0]), float(q[1]), z_r, x, float(q[2]),
+                                    float(q[3]), zr_dot, v),
+                self.tpl_imu_s.pack(ns, p.a_s + self.gravity),
+                self.tpl_imu_u.pack(ns, p.a_u + self.gravity),
+                self.tpl_stroke.pack(ns, x))
+        for pub, raw in zip(self.loop_pubs, raws):
+            pub.publish(raw)
         if self.lockstep:
-            self.pub_imu_s.publish(self.msg_imu_s)
-            self.pub_imu_u.publish(self.msg_imu_u)
-            self.pub_stroke.publish(self.msg_stroke)
-            self.pub_truth.publish(self.msg_truth)
-        else:
-            self.pub_truth.publish(self.msg_truth)
-            self.pub_imu_s.publish(self.msg_imu_s)
-            self.pub_imu_u.publish(self.msg_imu_u)
-            self.pub_stroke.publish(self.msg_stroke)
-        self.pub_tyre.publish(self.msg_tyre)
+            self.sent[p.k] = raws
+            self.sent.pop(p.k - self.coupling_delay - 2, None)
+        self.pub_tyre.publish(self.tpl_tyre.pack(ns, p.f_t))
         if self.pub_clock is not None:
-            self.msg_clock.clock.sec = int(ns // 1_000_000_000)
-            self.msg_clock.clock.nanosec = int(ns % 1_000_000_000)
-            self.pub_clock.publish(self.msg_clock)
+            self.pub_clock.publish(self.tpl_clock.pack(ns))
 
     # -- stepping --------------------------------------------------------------------------
 
@@ -265,18 +282,66 @@ class PlantNode(Node):
             return
         if not self.started or not 0 <= k <= self.plant.k:
             return
-        self.n_forces += 1
-        self.latency.append(now - self.pub_wall[k])
-        if self.first_force is None:
-            self.first_force = now
+        if self.lockstep:
+            if k < max(self.plant.k - self.coupling_delay, 0) or k in self.forces:
+                self.n_duplicates += 1  # answer to a re-sent sample, already in
+                return
+            self._count_force(k, now)
+            self.forces[k] = (k, effort[0], effort[1], velocity[0])
+            self._pump()
+            return
+        self._count_force(k, now)
         if self.force is not None and k < self.force[0]:
             return
         self.force = (k, effort[0], effort[1], velocity[0])
         if k == self.plant.k and not self.plant.done:
-            if self.lockstep:
-                self._advance()
-            else:
-                self._catch_up(now)
+            self._catch_up(now)
+
+    def _count_force(self, k, now):
+        self.n_forces += 1
+        self.latency.append(now - self.pub_wall[k])
+        if self.first_force is None:
+            self.first_force = now
+
+    def _resend(self):
+        """Lock-step: re-send the samples the loop waits on when it made no progress.
+
+        The loop's stamped links are best effort (:func:`common.qos`); a sample lost on one of
+        them would stall the loop. After ``resend_after`` without a step the plant publishes
+        again, byte for byte, samples ``j - 1 .. k`` (``j``: the sample whose force it waits
+        for; ``j - 1``: the sensors of the command that force needs). Actuator, controller and
+        recorder recognise the repeated stamps, so a recovered run equals an undisturbed one.
+        """
+        now = time.monotonic()
+        p = self.plant
+        if not self.started or p.done or p.k != self.resend_mark[0]:
+            self.resend_mark = (p.k, now)
+            return
+        if now - self.resend_mark[1] < self.resend_after:
+            return
+        first = max(p.k - self.coupling_delay - 1, 0)
+        for k in range(first, p.k + 1):
+            for pub, raw in zip(self.loop_pubs, self.sent.get(k, ())):
+                pub.publish(raw)
+        self.n_resends += 1
+        self.resend_mark = (p.k, now)
+        self.get_logger().warning(
+            f'plant: no damper force for sample {max(p.k - self.coupling_delay, 0)} after '
+            f'{self.resend_after * 1e3:.0f} ms; re-sent samples {first}..{p.k}',
+            throttle_duration_sec=5.0)
+
+    def _pump(self):
+        """Lock-step: take every step whose force (of sample ``max(k - delay, 0)``) is in."""
+        p = self.plant
+        delay = self.coupling_delay
+        while not p.done:
+            force = self.forces.get(max(p.k - delay, 0))
+            if force is None:
+                return
+            self.force = force
+            self._advance()
+            for old in [j for j in self.forces if j < p.k - delay]:
+                del self.forces[old]
 
     def _advance(self):
         t_in = time.monotonic()
@@ -285,7 +350,7 @@ class PlantNode(Node):
             f_d, c_d = 0.0, 0.0
         else:
             k, f_m, c_m, v_m = self.force
-            if k != p.k:
+            if k != (max(p.k - self.coupling_delay, 0) if self.lockstep else p.k):
                 self.late_forces += 1
             f_d, c_d = p.coupled(f_m, c_m, v_m), c_m
         p.step(f_d, c_d)
@@ -339,7 +404,8 @@ class PlantNode(Node):
             steps_per_s_sustained=(self.plant.k - 1) / max(
                 time.monotonic() - (self.first_force or self.wall0), 1e-9),
             published=self.plant.k + 1, forces_received=self.n_forces,
-            late_forces=self.late_forces, latency_p50_s=lat[0], latency_p99_s=lat[1],
+            late_forces=self.late_forces, resends=self.n_resends,
+            duplicate_forces=self.n_duplicates, latency_p50_s=lat[0], latency_p99_s=lat[1],
             latency_max_s=max(self.latency, default=float('nan')),
             latency_max_index=max(range(len(self.latency)), key=self.latency.__getitem__,
                                   default=-1),

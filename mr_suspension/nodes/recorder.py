@@ -5,9 +5,10 @@ Uses ``rosbags`` (no rosbag2 install needed); the bag is a standard rosbag2 dire
 Messages are taken serialized (raw CDR) and written as they are, time-stamped at reception like
 ``ros2 bag record``: with the node's clock in real time; with simulated time in lock-step
 (``lockstep: true``, as ``ros2 bag record --use-sim-time``): the header stamp of stamped
-messages and ``/clock``, the newest of those for the others. On SIGINT/SIGTERM it keeps
-spinning until the queues are drained, then closes the bag (metadata written), so no received
-message is lost.
+messages and ``/clock``, the newest of those for the others; a stamped message whose stamp is
+not newer than the last one on its topic (a sample re-sent after a lock-step stall) is recorded
+once. On SIGINT/SIGTERM it keeps spinning until the queues are drained, then closes the bag
+(metadata written), so no received message is lost.
 """
 
 from datetime import datetime
@@ -19,18 +20,13 @@ import time
 
 from rclpy.node import Node
 from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import get_typestore, Stores
 
 from mr_suspension.nodes import common, contract as c
+from mr_suspension.nodes.cdr import typestore
 
 NODE = 'recorder'
 _STAMP = struct.Struct('<iI')
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
-
-
-def typestore():
-    """Return the rosbags type store matching this ROS distribution (Kilted)."""
-    return get_typestore(Stores.ROS2_KILTED)
 
 
 def message_class(msgtype):
@@ -77,6 +73,7 @@ class RecorderNode(Node):
         self.closed = False
         store = typestore()
         self.counts = {}
+        self.repeated = 0
         self.sim_ns = None
         self.last_arrival = time.monotonic()
         for name in names:
@@ -94,6 +91,8 @@ class RecorderNode(Node):
         # Lock-step: Clock and stamped messages carry the simulated time at the same offset.
         timed = self.lockstep and (full == c.CLOCK or msgtype in (c.IMU, c.JOINT_STATE))
 
+        last = [-1]
+
         def callback(raw):
             with self.lock:
                 if self.closed:
@@ -101,6 +100,10 @@ class RecorderNode(Node):
                 if timed and raw[0:2] == b'\x00\x01':
                     sec, nsec = _STAMP.unpack_from(raw, 4)
                     stamp = sec * 1_000_000_000 + nsec
+                    if stamp <= last[0]:
+                        self.repeated += 1  # re-sent after a lock-step stall: recorded once
+                        return
+                    last[0] = stamp
                     if self.sim_ns is None or stamp > self.sim_ns:
                         self.sim_ns = stamp
                 elif self.lockstep and self.sim_ns is not None:
@@ -129,7 +132,8 @@ class RecorderNode(Node):
             self.writer.close()
         self.get_logger().info(f'recorder: closed {self.path} with '
                                f'{sum(self.counts.values())} messages')
-        self.stats.data.update(path=str(self.path), counts=self.counts)
+        self.stats.data.update(path=str(self.path), counts=self.counts,
+                               repeated_dropped=self.repeated)
         self.stats.write()
 
     def destroy_node(self):

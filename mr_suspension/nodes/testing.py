@@ -45,16 +45,19 @@ def add(executor, nodes, node):
     return node
 
 
-def run_in_process(road, duration, controller, lockstep):
-    """Run plant, controller and actuator in one executor; return (summary, late forces).
+def run_in_process(road, duration, controller, lockstep, **plant_params):
+    """Run plant, controller and actuator in one executor; return (summary, plant counters).
 
     The summary has the RMS body acceleration, working space and dynamic tyre load of the
-    plant's samples, as :func:`mr_suspension.nodes.launch.offline_summary` has them.
+    plant's samples, as :func:`mr_suspension.nodes.launch.offline_summary` has them; the
+    counters are the plant's late forces, re-sends and repeated forces. ``plant_params``
+    override plant parameters (``coupling_delay``, ``resend_after``, ...).
     """
     common_p = {'lockstep': lockstep, 'controller': controller}
     with ros_context() as (ctx, ex, nodes):
         plant = add(ex, nodes, PlantNode(context=ctx, parameter_overrides=params(
-            road=road, duration=duration, start_delay=0.05, exit_at_end=False, **common_p)))
+            road=road, duration=duration, start_delay=0.05, exit_at_end=False, **common_p,
+            **plant_params)))
         acc, stroke, tyre = [], [], []
 
         def record(_step=plant._advance):
@@ -69,6 +72,7 @@ def run_in_process(road, duration, controller, lockstep):
         add(ex, nodes, ActuatorNode(context=ctx, parameter_overrides=params(**common_p)))
         if not common.spin_until(ex, lambda: plant.plant.done, 60.0):
             raise TimeoutError('node set did not finish within 60 s')
-        late = plant.late_forces
+        counters = {'late_forces': plant.late_forces, 'resends': plant.n_resends,
+                    'duplicate_forces': plant.n_duplicates}
     return {'body_acc_rms': rms(acc), 'working_space_rms': rms(stroke),
-            'tyre_load_rms': rms(tyre)}, late
+            'tyre_load_rms': rms(tyre)}, counters
