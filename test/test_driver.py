@@ -1,11 +1,13 @@
 """Wonder Box driver and MR-fluid dynamics (seed 000 sections 5.2-5.3)."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from mr_suspension.core import config
+from mr_suspension.core import driver as drv
 from mr_suspension.core.driver import (command_voltage, driver_series, driver_state,
                                        driver_step, driver_step_voltage, DriverParams, prepare,
                                        static_current)
@@ -109,3 +111,29 @@ def test_bad_driver_parameters_raise():
         DriverParams(dead_time=1.0)
     with pytest.raises(ValueError, match='exceeds'):
         prepare(DriverParams(dead_time=0.2), 1e-4)
+
+
+@pytest.mark.parametrize('dead_time', [0.0, 0.001, 0.003, 0.005])
+def test_field_ahead_equals_the_field_that_comes(dead_time):
+    """Within the dead time the future field is already decided: prediction is exact."""
+    base = config.load_driver('wonder_box')
+    q = drv.prepare(dataclasses.replace(base, dead_time=dead_time), 1e-3)
+    nd = int(q[drv.Q_NDEAD])
+    s = drv.driver_state(0.0)
+    rng = np.random.default_rng(4)
+    n = 600
+    fields = np.zeros(n)
+    ahead = {}
+    for k in range(n):
+        _, fields[k] = drv.driver_output(q, s)
+        for d in range(1, 4):
+            ahead[(k, d)] = drv.driver_field_ahead(q, s, d)
+        assert drv.driver_field_ahead(q, s, 0) == fields[k]
+        drv.driver_input(q, s, drv.clip_command(q, rng.choice([0.0, 0.3, 1.0, 2.0])))
+    for (k, d), value in ahead.items():
+        if k + d < n:
+            exact = min(d, max(nd - 1, 0))
+            if d == exact:
+                assert value == pytest.approx(fields[k + d], abs=1e-15), (k, d)
+            elif nd <= 1:
+                assert value == fields[k]  # nothing decided beyond the present sample

@@ -18,9 +18,8 @@ ROAD = '{type: bump, height: 0.05, length: 2.0, speed: 10.0}'
                                                   (False, None, 2.0)])
 def test_node_set_processes_agree_with_offline(tmp_path, lockstep, delay, tol):
     """Exact lock-step to round-off; one-sample coupling and real time within 2 %."""
-    extra = {'plant': {'coupling_delay': delay}} if lockstep else None
     res = run_node_set(tmp_path / 'run', duration=1.0, road=ROAD, controller='passive_1A',
-                       lockstep=lockstep, timeout=90.0, extra=extra)
+                       lockstep=lockstep, timeout=90.0, coupling_delay=delay)
     assert res['returncodes'] == {'recorder': 0, 'controller': 0, 'actuator': 0, 'plant': 0}
     counts = res['summary']['counts']
     published = res['stats']['plant']['published']

@@ -164,7 +164,7 @@ def test_actuator_rejects_and_clamps_invalid_commands():
     cfg = corner_config()
     with ros_context() as (ctx, ex, nodes):
         act = add(ex, nodes, ActuatorNode(context=ctx, parameter_overrides=params(
-            lockstep=True, current_max=2.0)))
+            lockstep=True, current_max=2.0, coupling_delay=0)))
         h = add(ex, nodes, Harness(ctx, pubs=(c.CURRENT_COMMAND, c.TRUTH_STATE),
                                    subs=(c.DAMPER_FORCE, c.COIL_CURRENT), lockstep=True))
         assert common.spin_until(

@@ -147,6 +147,25 @@ def driver_output(q, s):
 
 
 @njit(cache=True)
+def driver_field_ahead(q, s, ahead):
+    """Return the field current [A] ``ahead`` samples after the one :func:`driver_output` read.
+
+    Call after :func:`driver_output` of the present sample, before its :func:`driver_input`. The
+    dead-time ring holds the lag outputs of the next ``n_dead - 1`` samples already, so for
+    ``ahead <= n_dead - 1`` the result is exact whatever the commands still to come (the fluid
+    lag is advanced on a local copy; ``s`` is unchanged); a larger ``ahead`` is clipped to
+    ``n_dead - 1`` (0 without a dead time: the present field).
+    """
+    nd = int(q[Q_NDEAD])
+    f = s[DRV_FLUID]
+    head = int(s[DRV_HEAD])
+    for m in range(1, min(ahead, nd - 1) + 1):
+        coil = s[DRV_BUF + (head + m) % nd]
+        f += (q[Q_FRISE] if coil > f else q[Q_FFALL]) * (coil - f)
+    return f
+
+
+@njit(cache=True)
 def driver_step_current(q, s, u):
     """Advance driver and fluid one step from the static-map output ``u`` [A].
 

@@ -111,10 +111,18 @@ class ActuatorStepper:
             return i_apply
         return i_cmd
 
-    def force(self, x, v):
-        """First half of a step: (coil, field, force, dF/dv) from the driver's delayed output."""
+    def force(self, x, v, ahead=0):
+        """First half of a step: (coil, field, force, dF/dv) from the driver's delayed output.
+
+        ``ahead`` > 0 evaluates the damper at this motion with the field current of the sample
+        ``ahead`` steps later (exact up to the driver's dead time minus one sample,
+        :func:`~mr_suspension.core.driver.driver_field_ahead`): the force for a plant that
+        applies it ``ahead`` samples late (the lock-step ``coupling_delay``). The returned
+        field is the present one.
+        """
         coil, field = drv.driver_output(self.drv_p, self.drv_s)
-        f_d, c_d = dmp.damper_force(self.law, self.dp, self.ds, x, v, field, self.dt)
+        used = drv.driver_field_ahead(self.drv_p, self.drv_s, ahead) if ahead > 0 else field
+        f_d, c_d = dmp.damper_force(self.law, self.dp, self.ds, x, v, used, self.dt)
         return float(coil), float(field), float(f_d), float(c_d)
 
     def command(self, i_cmd):
@@ -127,6 +135,7 @@ class ActuatorStepper:
         drv_s, ds = self.drv_s.copy(), self.ds.copy()
         drv.driver_output(self.drv_p, drv_s)
         drv.driver_input(self.drv_p, drv_s, drv.clip_command(self.drv_p, 0.0))
+        drv.driver_field_ahead(self.drv_p, drv_s, 1)
         drv.driver_step(self.drv_p, drv_s, 0.0)
         dmp.damper_force(self.law, self.dp, ds, 0.0, 0.0, 0.0, self.dt)
         return self

@@ -14,7 +14,9 @@ driver and fluid response). Lock-step pairs the ``k``-th command with the ``k``-
 sample, which is the simulator's order exactly; with a driver dead time of one sample or more
 (the Wonder Box has 3 ms) force ``k`` does not depend on command ``k``, so the force is published
 as soon as motion ``k`` arrives and command ``k`` is applied afterwards: the same numbers, with the
-controller off the plant-actuator critical path.
+controller off the plant-actuator critical path. With ``coupling_delay`` d > 0 (the plant applies
+force ``k`` to step ``k + d``) the damper is evaluated with the field current of sample ``k + d``,
+which the dead-time buffer already holds (exact for d < dead time in samples).
 
 Commands are checked: NaN/inf are rejected (the previous valid command is held), values outside
 ``[current_min, current_max]`` are clamped, both with a throttled log. Before the first command,
@@ -56,6 +58,10 @@ class ActuatorNode(Node):
         self.command_timeout = common.declare(self, d, 'command_timeout', 'Real time: commands '
                                               'older than this give safe_current [s]',
                                               0.0005, 10.0)
+        self.coupling_delay = common.declare(
+            self, d, 'coupling_delay', 'Lock-step: the plant applies each force this many '
+            'samples late (set it as the plant does); the damper is evaluated with the field '
+            'current of that later sample, exact within the driver dead time', 0, 10)
         recorders = common.declare(self, d, 'recorders', 'Lock-step: recorders to wait for on '
                                    'damper/force and coil_current before the first output', 0, 10)
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
@@ -188,7 +194,7 @@ class ActuatorNode(Node):
             due = self.forces_done * self.dt_ns
             if self.forces_done == self.commands_done and due in self.motions:
                 stamp, x, v = self._checked(self.motions.pop(due))
-                self._publish(stamp, x, v, *self.stepper.force(x, v))
+                self._publish(stamp, x, v, *self.stepper.force(x, v, self.coupling_delay))
                 self.forces_done += 1
                 progress = True
             if self.commands_done < self.forces_done and self.commands:

@@ -33,7 +33,8 @@ def format_result(res):
         lines.append(f'plant: {plant.get("steps", 0)} steps at {rate:.0f} steps/s '
                      f'({rate / plant.get("rate", 1000):.2f}x real time) after a start-up '
                      f'handshake of {plant.get("startup_s", 0):.2f} s; force late on '
-                     f'{plant.get("late_forces", 0)} steps; loop latency p50/p99 '
+                     f'{plant.get("late_forces", 0)} steps; re-sends '
+                     f'{plant.get("resends", 0)}; loop latency p50/p99 '
                      f'{1e3 * plant.get("latency_p50_s", 0):.2f}/'
                      f'{1e3 * plant.get("latency_p99_s", 0):.2f} ms')
     lines.append('process exit codes: ' + ', '.join(
@@ -49,7 +50,7 @@ def cmd_nodes(args):
     res = run_node_set(out, duration=args.duration, road=road_spec(args), vehicle=args.vehicle,
                        damper=args.damper, driver=args.driver, controller=args.controller,
                        lockstep=not args.realtime, rate=args.rate, storage=args.storage,
-                       namespace=args.namespace)
+                       namespace=args.namespace, coupling_delay=args.coupling_delay)
     text = format_result(res)
     (out / 'summary.md').write_text(text + '\n', encoding='utf-8')
     (out / 'result.json').write_text(json.dumps(res, indent=1, default=str), encoding='utf-8')
@@ -97,6 +98,10 @@ def register(subparsers):
     p.add_argument('--rate', type=float, default=1000.0, help='node rate [Hz]')
     p.add_argument('--realtime', action='store_true',
                    help='real time instead of lock-step simulated time')
+    p.add_argument('--coupling-delay', type=int, default=None,
+                   help='lock-step: the plant applies each damper force this many samples '
+                        'late (default 1: plant and actuator run concurrently, faster; 0: the '
+                        "offline simulator's step order exactly)")
     p.add_argument('--storage', default='mcap', choices=['mcap', 'sqlite3'])
     p.add_argument('--namespace', default='front_left', help='corner namespace')
     p.set_defaults(func=cmd_nodes)

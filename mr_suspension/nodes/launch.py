@@ -152,10 +152,12 @@ def _stop(proc, timeout):
 def run_node_set(out_dir, duration=3.0, road=DEFAULT_ROAD, vehicle='city_car',
                  damper='rd1005_bingham', driver='wonder_box', controller='skyhook_onoff',
                  lockstep=True, rate=1000.0, storage='mcap', namespace='front_left',
-                 domain_id=None, record=True, timeout=None, extra=None):
+                 domain_id=None, record=True, timeout=None, extra=None, coupling_delay=None):
     """Run plant, controller, actuator (and recorder) as separate processes; return the results.
 
-    ``extra`` maps node name -> dict of further parameters. Returns a dict with ``bag`` (path or
+    ``coupling_delay`` (lock-step; plant and actuator, default from ``config/nodes``: 1; 0 =
+    the simulator's step order exactly). ``extra`` maps node name -> dict of further
+    parameters. Returns a dict with ``bag`` (path or
     None), ``summary`` (read back from the bag), ``offline`` (simulator), ``agreement`` [%],
     ``stats`` per node, ``returncodes`` and ``wall_s``.
     """
@@ -175,6 +177,9 @@ def run_node_set(out_dir, duration=3.0, road=DEFAULT_ROAD, vehicle='city_car',
         'actuator': dict(common, recorders=int(record)),
         'recorder': {'output': str(bag), 'storage': storage, 'lockstep': bool(lockstep)},
     }
+    if coupling_delay is not None:
+        for name in ('plant', 'actuator'):
+            params[name]['coupling_delay'] = int(coupling_delay)
     for name in nodes:
         params[name]['stats_file'] = str(out / f'stats_{name}.json')
         params[name].update((extra or {}).get(name, {}))

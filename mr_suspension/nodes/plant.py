@@ -252,13 +252,14 @@ class PlantNode(Node):
         self.pub_wall[p.k] = time.monotonic()
         # The damper motion first (the actuator answers it at once; in lock-step it is the
         # critical path), then the sensors, the tyre force and the clock.
-        raws = (self.tpl_truth.pack(ns, float(q[0]), float(q[1]), z_r, x, float(q[2]),
-                                    float(q[3]), zr_dot, v),
-                self.tpl_imu_s.pack(ns, p.a_s + self.gravity),
-                self.tpl_imu_u.pack(ns, p.a_u + self.gravity),
-                self.tpl_stroke.pack(ns, x))
-        for pub, raw in zip(self.loop_pubs, raws):
-            pub.publish(raw)
+        truth = self.tpl_truth.pack(ns, float(q[0]), float(q[1]), z_r, x, float(q[2]),
+                                    float(q[3]), zr_dot, v)
+        self.pub_truth.publish(truth)
+        raws = (truth, self.tpl_imu_s.pack(ns, p.a_s + self.gravity),
+                self.tpl_imu_u.pack(ns, p.a_u + self.gravity), self.tpl_stroke.pack(ns, x))
+        self.pub_imu_s.publish(raws[1])
+        self.pub_imu_u.publish(raws[2])
+        self.pub_stroke.publish(raws[3])
         if self.lockstep:
             self.sent[p.k] = raws
             self.sent.pop(p.k - self.coupling_delay - 2, None)

@@ -45,15 +45,19 @@ def add(executor, nodes, node):
     return node
 
 
-def run_in_process(road, duration, controller, lockstep, **plant_params):
+def run_in_process(road, duration, controller, lockstep, coupling_delay=None, **plant_params):
     """Run plant, controller and actuator in one executor; return (summary, plant counters).
 
     The summary has the RMS body acceleration, working space and dynamic tyre load of the
     plant's samples, as :func:`mr_suspension.nodes.launch.offline_summary` has them; the
-    counters are the plant's late forces, re-sends and repeated forces. ``plant_params``
-    override plant parameters (``coupling_delay``, ``resend_after``, ...).
+    counters are the plant's late forces, re-sends and repeated forces. ``coupling_delay``
+    (plant and actuator; default from ``config/nodes``); ``plant_params`` override further
+    plant parameters (``resend_after``, ...).
     """
     common_p = {'lockstep': lockstep, 'controller': controller}
+    if coupling_delay is not None:
+        plant_params['coupling_delay'] = coupling_delay
+    act_p = {} if coupling_delay is None else {'coupling_delay': coupling_delay}
     with ros_context() as (ctx, ex, nodes):
         plant = add(ex, nodes, PlantNode(context=ctx, parameter_overrides=params(
             road=road, duration=duration, start_delay=0.05, exit_at_end=False, **common_p,
@@ -69,7 +73,8 @@ def run_in_process(road, duration, controller, lockstep, **plant_params):
 
         plant._advance = record
         add(ex, nodes, ControllerNode(context=ctx, parameter_overrides=params(**common_p)))
-        add(ex, nodes, ActuatorNode(context=ctx, parameter_overrides=params(**common_p)))
+        act_params = params(**common_p, **act_p)
+        add(ex, nodes, ActuatorNode(context=ctx, parameter_overrides=act_params))
         if not common.spin_until(ex, lambda: plant.plant.done, 60.0):
             raise TimeoutError('node set did not finish within 60 s')
         counters = {'late_forces': plant.late_forces, 'resends': plant.n_resends,
