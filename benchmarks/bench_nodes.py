@@ -5,7 +5,9 @@ road: achieved step rate, plant timer jitter (|period - 1 ms|) p50/p99, sensor-t
 latency p50/p99 (plant publishes sample k -> plant receives the damper force for sample k, via
 the actuator), late forces, messages lost on every link, CPU per node (fraction of one core
 over the run). Then lock-step (simulated time) for ``--lockstep-duration`` seconds: steps per
-second across processes, with and without the recorder.
+second across processes, with the default one-sample coupling (``coupling_delay`` 1; plant and
+actuator work concurrently) with and without the recorder, and in exact mode (``coupling_delay``
+0, the offline simulator's step order) without it.
 
 Usage: ``python benchmarks/bench_nodes.py [--duration 30] [--lockstep-duration 5]``.
 Targets: 1 kHz with zero loss, loop latency p99 < 2 ms, lock-step >= 3x real time.
@@ -93,10 +95,14 @@ def report_lockstep(res, duration, label):
           f'handshake: {p["steps_per_s_sustained"]:.0f} steps/s sustained = '
           f'{p["steps_per_s_sustained"] * 1e-3:.2f}x real time ({p["steps_per_s"]:.0f} steps/s '
           f'overall); loop latency p50/p99 {1e3 * p["latency_p50_s"]:.3f} / '
-          f'{1e3 * p["latency_p99_s"]:.3f} ms')
+          f'{1e3 * p["latency_p99_s"]:.3f} ms; lost samples re-sent {p.get("resends", 0)} times')
+    cpu = {n: 1e6 * st['cpu_s'] / max(p['steps'], 1) for n, st in res['stats'].items()
+           if 'cpu_s' in st}
+    print('   CPU per step [us]: ' + ', '.join(f'{n} {v:.0f}' for n, v in cpu.items())
+          + f' (total {sum(cpu.values()):.0f} on 2 cores)')
     if 'agreement' in res:
         print('   vs offline simulator [%]: ' + ', '.join(
-            f'{k} {v:+.2e}' for k, v in res['agreement'].items()))
+            f'{k} {v:+.3f}' for k, v in res['agreement'].items()))
 
 
 def main(argv=None):
@@ -113,10 +119,15 @@ def main(argv=None):
                            controller=args.controller, lockstep=False,
                            timeout=120.0 + 3.0 * args.duration)
         report_realtime(res, args.duration)
-        for label, record in (('with recorder', True), ('without recorder', False)):
-            res = run_node_set(out / f'lockstep_{record}', duration=args.lockstep_duration,
-                               road=ROAD, controller=args.controller, lockstep=True,
-                               record=record, timeout=120.0 + 20.0 * args.lockstep_duration)
+        for label, record, delay in (
+                ('coupling delay 1 (default), with recorder', True, 1),
+                ('coupling delay 1 (default), without recorder', False, 1),
+                ('coupling delay 0 (exact), without recorder', False, 0)):
+            res = run_node_set(out / f'lockstep_{record}_{delay}',
+                               duration=args.lockstep_duration, road=ROAD,
+                               controller=args.controller, lockstep=True, record=record,
+                               coupling_delay=delay,
+                               timeout=120.0 + 20.0 * args.lockstep_duration)
             report_lockstep(res, args.lockstep_duration, label)
     finally:
         if not args.out:
