@@ -17,6 +17,7 @@ import argparse
 from pathlib import Path
 import shutil
 import tempfile
+import time
 
 from mr_suspension.nodes import contract as c
 from mr_suspension.nodes.launch import run_node_set
@@ -105,6 +106,20 @@ def report_lockstep(res, duration, label):
             f'{k} {v:+.3f}' for k, v in res['agreement'].items()))
 
 
+def machine_reference(n=2_000_000):
+    """Seconds per million iterations of a plain Python loop (how fast this machine is now).
+
+    The node figures are absolute (steps per second of wall time), so they move with the load
+    other tenants put on a shared machine; this reference, measured in the same process just
+    before, tells a slow machine from a slow node set.
+    """
+    t0 = time.perf_counter()
+    acc = 0
+    for i in range(n):
+        acc += i
+    return (time.perf_counter() - t0) * 1e6 / n
+
+
 def main(argv=None):
     """Run the benchmark and print the figures."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -114,6 +129,8 @@ def main(argv=None):
     ap.add_argument('--out', default='', help='keep bags and logs here (default: temporary)')
     args = ap.parse_args(argv)
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix='bench_nodes_'))
+    print(f'machine reference: {machine_reference():.3f} s per million Python loop iterations '
+          '(larger = slower machine right now)')
     try:
         res = run_node_set(out / 'realtime', duration=args.duration, road=ROAD,
                            controller=args.controller, lockstep=False,
