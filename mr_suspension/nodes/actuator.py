@@ -99,7 +99,7 @@ class ActuatorNode(Node):
         self.have_command = False
         self.commands = deque()
         self.motions = {}  # lock-step: stamp -> motion sample not answered yet
-        self.dt_ns = int(round(self.config.dt * 1e9))
+        self.dt_ns = common.step_ns(self.config)
         self.answers = {}
         self.n_repeated = 0
         self.forces_done = 0

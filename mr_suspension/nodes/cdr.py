@@ -1,11 +1,12 @@
-"""Fast readers for the few fields the nodes need from serialized (CDR) contract messages.
+"""Fast CDR readers and writers for the contract messages the nodes exchange.
 
 Building a Python message object costs about 45 us for an ``Imu`` or a ``JointState``; at 1 kHz
 and three to four messages per node and step that is a large share of the loop. The nodes
 therefore subscribe with ``raw=True`` and read the fields they need straight from the
 little-endian plain CDR (XCDR1) that ROS 2 middlewares send, with ``struct`` (about 1 us).
 Anything else (big-endian or XCDR2 encapsulation) falls back to ``rclpy``'s deserializer, so the
-readers are always correct; ``test/test_nodes_cdr.py`` checks them against it.
+readers are always correct; ``test/test_nodes_cdr.py`` checks them against it. Publishing goes
+the other way through :class:`Template` (serialized once, patched per sample).
 """
 
 import array
@@ -140,12 +141,11 @@ class Template:
     """
 
     def __init__(self, msg, slots=(), stamped=True):
-        self.slots = tuple(slots)
         self.stamped = stamped
         store = typestore()
         base = serialize(msg, store)
         offsets = []
-        for i, slot in enumerate(self.slots):
+        for i, slot in enumerate(slots):
             old = _get(msg, slot)
             sentinel = -1.0e-300 * (1.0 + 1.0e-3 * i) - 3.0e-301
             _set(msg, slot, sentinel)

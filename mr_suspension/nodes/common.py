@@ -165,6 +165,11 @@ def set_stamp(header, ns):
     header.stamp.nanosec = int(ns % 1_000_000_000)
 
 
+def step_ns(config):
+    """Step of a corner config in integer nanoseconds (lock-step stamps are ``k`` times it)."""
+    return int(round(config.dt * 1e9))
+
+
 def check_grid(node, stamp, dt_ns):
     """Lock-step: log an error if ``stamp`` is not a multiple of the step (rates disagree)."""
     if stamp % dt_ns:

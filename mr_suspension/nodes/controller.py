@@ -79,7 +79,7 @@ class ControllerNode(Node):
         self.latest = {c.IMU_BODY: None, c.IMU_WHEEL: None, c.STROKE: None}
         self.arrival = dict.fromkeys(self.latest, -math.inf)
         self.coil = deque()  # lock-step: coil current k - 1 for the command of sample k
-        self.dt_ns = int(round(self.config.dt * 1e9))
+        self.dt_ns = common.step_ns(self.config)
         self.coil_latest = math.nan
         self.pending = {}
         self.k = 0

@@ -97,7 +97,7 @@ class PlantNode(Node):
                                                  'as JSON here on exit ("" = off)'))
         self.road = rd.from_spec(parse_road(spec), duration=duration, dt=self.config.dt)
         self.plant = PlantStepper(self.config, self.road).warm_up()
-        self.dt_ns = int(round(self.config.dt * 1e9))
+        self.dt_ns = common.step_ns(self.config)
         self.finished = threading.Event()
 
         ls = self.lockstep
@@ -284,7 +284,7 @@ class PlantNode(Node):
         if not self.started or not 0 <= k <= self.plant.k:
             return
         if self.lockstep:
-            if k < max(self.plant.k - self.coupling_delay, 0) or k in self.forces:
+            if k < self._wanted() or k in self.forces:
                 self.n_duplicates += 1  # answer to a re-sent sample, already in
                 return
             self._count_force(k, now)
@@ -320,29 +320,35 @@ class PlantNode(Node):
             return
         if now - self.resend_mark[1] < self.resend_after:
             return
-        first = max(p.k - self.coupling_delay - 1, 0)
+        wanted = self._wanted()
+        first = max(wanted - 1, 0)
         for k in range(first, p.k + 1):
             for pub, raw in zip(self.loop_pubs, self.sent.get(k, ())):
                 pub.publish(raw)
         self.n_resends += 1
         self.resend_mark = (p.k, now)
         self.get_logger().warning(
-            f'plant: no damper force for sample {max(p.k - self.coupling_delay, 0)} after '
+            f'plant: no damper force for sample {wanted} after '
             f'{self.resend_after * 1e3:.0f} ms; re-sent samples {first}..{p.k}',
             throttle_duration_sec=5.0)
 
+    def _wanted(self):
+        """Lock-step: the sample whose force the next step uses, ``max(k - delay, 0)``."""
+        return max(self.plant.k - self.coupling_delay, 0)
+
     def _pump(self):
-        """Lock-step: take every step whose force (of sample ``max(k - delay, 0)``) is in."""
+        """Lock-step: take every step whose force (of sample :meth:`_wanted`) is in."""
         p = self.plant
-        delay = self.coupling_delay
         while not p.done:
-            force = self.forces.get(max(p.k - delay, 0))
+            force = self.forces.get(self._wanted())
             if force is None:
                 return
             self.force = force
             self._advance()
-            for old in [j for j in self.forces if j < p.k - delay]:
-                del self.forces[old]
+            # Forces arrive in order and older ones are refused, so the one just used (if no
+            # longer wanted) is the only stale entry.
+            if force[0] < self._wanted():
+                del self.forces[force[0]]
 
     def _advance(self):
         t_in = time.monotonic()
@@ -351,7 +357,7 @@ class PlantNode(Node):
             f_d, c_d = 0.0, 0.0
         else:
             k, f_m, c_m, v_m = self.force
-            if k != (max(p.k - self.coupling_delay, 0) if self.lockstep else p.k):
+            if k != (self._wanted() if self.lockstep else p.k):
                 self.late_forces += 1
             f_d, c_d = p.coupled(f_m, c_m, v_m), c_m
         p.step(f_d, c_d)
