@@ -2,6 +2,8 @@
 
 import os
 
+import pytest
+
 from mr_suspension.nodes import contract as c
 from mr_suspension.nodes.actuator import ActuatorNode
 from mr_suspension.nodes.controller import ControllerNode
@@ -45,11 +47,13 @@ def test_nodes_and_recorder_follow_contract(tmp_path):
             full = {t: node.resolve_topic_name(t) for t in c.TOPICS}
             pubs = {p.topic_name: p for p in node.publishers if p.topic_name not in AUTO}
             subs = {}
-            for sub in node.subscriptions:
+            # (the recorder's subscriptions sit on its internal, polled taps node)
+            for sub in getattr(node, 'taps', node).subscriptions:
                 if sub.topic_name not in AUTO:
                     subs.setdefault(sub.topic_name, []).append(sub)
             assert sorted(pubs) == sorted(full[t] for t in c.published_by(name)), name
-            assert sorted(subs) == sorted(full[t] for t in c.subscribed_by(name)), name
+            assert {full[t] for t in c.subscribed_by(name)} <= set(subs), name
+            assert set(subs) <= {full[t] for t in c.subscribed_by(name, optional=True)}, name
             for t in c.published_by(name):
                 pub = pubs[full[t]]
                 assert _type_name(pub.msg_type) == c.TOPICS[t].type
@@ -62,3 +66,27 @@ def test_nodes_and_recorder_follow_contract(tmp_path):
         recorded = set(made['recorder'].counts)
         assert recorded == {made['recorder'].resolve_topic_name(t) for t in c.TOPICS}
     assert os.path.isdir(tmp_path / 'bag')
+
+
+@pytest.mark.parametrize('controller,damper,feedback,subscribed', [
+    ('skyhook_onoff', 'spencer_bouc_wen', 'auto', False),  # on-off: never reads the field
+    ('skyhook', 'rd1005_bingham', 'auto', False),  # inverts a model without state
+    ('skyhook', 'spencer_bouc_wen', 'auto', True),  # Bouc-Wen state follows the current
+    ('skyhook_onoff', 'rd1005_bingham', 'on', True),
+    ('clipped_optimal', 'spencer_bouc_wen', 'off', False),
+])
+def test_controller_subscribes_to_coil_current_when_its_law_reads_it(
+        controller, damper, feedback, subscribed):
+    assert 'controller' in c.TOPICS[c.COIL_CURRENT].optional_subscribers
+    with ros_context() as (ctx, ex, nodes):
+        node = add(ex, nodes, ControllerNode(
+            context=ctx, namespace='/fl', parameter_overrides=params(
+                controller=controller, damper=damper, coil_feedback=feedback)))
+        topics = {s.topic_name for s in node.subscriptions}
+        assert ('/fl/' + c.COIL_CURRENT in topics) == subscribed
+
+
+def test_controller_rejects_unknown_coil_feedback():
+    with ros_context() as (ctx, _, _):
+        with pytest.raises(ValueError, match='coil_feedback'):
+            ControllerNode(context=ctx, parameter_overrides=params(coil_feedback='maybe'))

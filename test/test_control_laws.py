@@ -206,3 +206,36 @@ def test_noise_reaches_the_law():
         runs[noise] = simulate(conf, road).i_cmd
     assert np.all(runs[0.0] == 0.0)
     assert np.ptp(runs[0.5]) > 0.0
+
+
+def _commands_with_and_without_field(law, damper):
+    c = ControllerParams(law=law).with_plant(CAR, cfg.load_damper(damper))
+    p = c.to_array()
+    rng = np.random.default_rng(11)
+    meas = rng.normal(0.0, [3.0, 30.0, 0.02, 0.0, 0.0, 0.0, 0.0], size=(300, 7))
+    meas[:, 3:6] = math.nan       # velocities estimated from the sensors
+    runs = []
+    for field in (np.full(300, math.nan), rng.uniform(0.0, 2.0, 300)):
+        s = np.zeros(L.N_CTRL_STATE)
+        out = []
+        for k in range(300):
+            m = meas[k].copy()
+            m[L.M_FIELD] = field[k]
+            out.append(L.controller_step(c.law_id, p, s, m, 1e-3))
+        runs.append(np.array(out))
+    return L.uses_field(c.law_id, p), runs[0], runs[1]
+
+
+@pytest.mark.parametrize('law', sorted(L.LAW_IDS))
+@pytest.mark.parametrize('damper', ['rd1005_bingham', 'spencer_bouc_wen', 'seed000_mechanical'])
+def test_field_slot_ignored_unless_uses_field(law, damper):
+    """Without uses_field() the commands are the same whatever the measured field current."""
+    uses, without, with_field = _commands_with_and_without_field(law, damper)
+    if not uses:
+        assert np.array_equal(without, with_field), (law, damper)
+
+
+@pytest.mark.parametrize('law', L.INVERSE_LAWS)
+def test_field_slot_read_by_inverse_laws_on_stateful_models(law):
+    uses, without, with_field = _commands_with_and_without_field(law, 'spencer_bouc_wen')
+    assert uses and not np.array_equal(without, with_field), law

@@ -11,6 +11,7 @@ import pytest
 
 from mr_suspension.control.laws import LAW_IDS
 from mr_suspension.core import config as cfg
+from mr_suspension.core.stepper import ControllerStepper
 from mr_suspension.nodes.launch import agreement, corner_config, offline_summary
 from mr_suspension.nodes.testing import run_in_process
 
@@ -28,5 +29,17 @@ def test_every_law_has_a_set():
 def test_law_through_node_set_matches_offline(controller):
     nodes, _ = run_in_process(ROAD, DURATION, controller, True, coupling_delay=0)
     offline = offline_summary(corner_config(controller=controller), ROAD, DURATION)
+    for key, diff in agreement(nodes, offline).items():
+        assert abs(diff) < 1e-6, (controller, key, diff)
+
+
+@pytest.mark.parametrize('controller', ['skyhook', 'clipped_optimal'])
+def test_coil_current_feedback_through_node_set_matches_offline(controller):
+    """A law that reads the measured coil current (inverse of a Bouc-Wen model) in lock-step."""
+    damper = 'spencer_bouc_wen'
+    config = corner_config(controller=controller, damper=damper)
+    assert ControllerStepper(config).uses_field
+    nodes, _ = run_in_process(ROAD, DURATION, controller, True, coupling_delay=0, damper=damper)
+    offline = offline_summary(config, ROAD, DURATION)
     for key, diff in agreement(nodes, offline).items():
         assert abs(diff) < 1e-6, (controller, key, diff)

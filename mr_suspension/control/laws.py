@@ -93,6 +93,20 @@ ESTIMATION = {'sensors': 0.0, 'ideal': 1.0}
  P_DP) = range(34)
 N_CTRL_FIXED = P_DP
 
+
+def uses_field(cid, p):
+    """Whether law ``cid`` with parameter array ``p`` reads the field-current slot ``M_FIELD``.
+
+    The slot only advances the state of the controller's copy of the damper model
+    (:func:`_model_update`), and only the laws that invert that model (``INVERSE_LAWS``) read the
+    state, and only for models with state (max-velocity tanh, mechanical, Bouc-Wen, extended).
+    Otherwise the command is the same whatever the slot holds, so the controller needs no
+    coil-current measurement.
+    """
+    stateful = (dmp.LAW_TANH_MAXVEL, dmp.LAW_MECHANICAL, dmp.LAW_BOUC_WEN, dmp.LAW_EXTENDED)
+    return cid in tuple(LAW_IDS[name] for name in INVERSE_LAWS) and int(p[P_DLAW]) in stateful
+
+
 # Default inverse model: RD-1005-3 class smooth Bingham (config/dampers/rd1005_bingham.yaml).
 DEFAULT_DAMPER_MODEL = {'law': 'bingham', 'f0': 0.0, 'c0': 400.0, 'c1': 1200.0, 'fc0': 20.0,
                         'fc1': 400.0, 'v_y': 0.02}

@@ -14,6 +14,7 @@ Deterministic: no randomness is drawn here (roads are generated from a seed befo
 """
 
 from dataclasses import dataclass, field, replace
+import math
 
 from numba import njit, prange
 import numpy as np
@@ -107,7 +108,9 @@ def corner_loop(car_p, law, dp, ds, drv_p, drv_s, cid, cp, cs, road_z, road_zd, 
     """Run one corner over the road; records channels into ``out`` and metrics into ``acc``.
 
     ``acc`` accumulates [sum a^2, max |a|, sum a_w^2, sum a_w^4, sum x^2, max |x|,
-    sum dF_t^2, min F_t, sum F_d v dt].
+    sum dF_t^2, min F_t, sum F_d v dt]. The law's field-current slot gets what a car measures:
+    the driver's coil current of the step before (NaN at the first step), as the node set's
+    controller gets it from ``coil_current``.
     """
     n = road_z.shape[0] - 1
     m = np.zeros(N_MEAS)
@@ -115,7 +118,7 @@ def corner_loop(car_p, law, dp, ds, drv_p, drv_s, cid, cp, cs, road_z, road_zd, 
     head = 0
     a_s = 0.0
     a_u = 0.0
-    f_field = drv_s[1]
+    coil = math.nan  # measured coil current of the step before: none yet at k = 0
     nsec = sos.shape[0]
     zi = np.zeros((nsec, 2))
     f_t0 = (car_p[CAR_MS] + car_p[CAR_MU]) * car_p[CAR_G]
@@ -129,7 +132,7 @@ def corner_loop(car_p, law, dp, ds, drv_p, drv_s, cid, cp, cs, road_z, road_zd, 
         m[3] = v
         m[4] = q[VS]
         m[5] = q[VU]
-        m[6] = f_field
+        m[6] = coil
         i_cmd = controller_step(cid, cp, cs, m, dt)
         if delay_n > 0:
             i_apply = dbuf[head]

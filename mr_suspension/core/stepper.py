@@ -49,6 +49,7 @@ class ControllerStepper:
         self.dt = config.dt
         self.i_min = float(self.cp[laws.P_IMIN])
         self.i_max = float(self.cp[laws.P_IMAX])
+        self.uses_field = laws.uses_field(self.cid, self.cp)
 
     def step(self, acc_s, acc_u, stroke, field=math.nan, velocities=None):
         """Return the current command [A] for one sample of measurements."""

@@ -83,7 +83,7 @@ class ActuatorNode(Node):
         self.gate = None
         if self.lockstep:
             self.gate = common.MatchGate(self, [(self.pub_force, 1 + recorders),
-                                                (self.pub_coil, 1 + recorders)],
+                                                (self.pub_coil, recorders)],
                                          self._run_lockstep)
         force = JointState()
         force.header.frame_id = c.FRAME_SUSPENSION

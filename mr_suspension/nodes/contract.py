@@ -25,6 +25,7 @@ class Topic:
     frame_id: str
     publisher: str
     subscribers: tuple
+    optional_subscribers: tuple = ()  # subscribe only in some configurations
 
 
 IMU_BODY = 'imu/body'
@@ -62,8 +63,8 @@ TOPICS = {t.name: t for t in (
           ('controller', 'recorder')),
     Topic(CURRENT_COMMAND, FLOAT64, 1000, _R, DEPTH, 'A', '', 'controller',
           ('actuator', 'recorder')),
-    Topic(COIL_CURRENT, FLOAT64, 1000, _R, DEPTH, 'A', '', 'actuator',
-          ('controller', 'recorder')),
+    Topic(COIL_CURRENT, FLOAT64, 1000, _R, DEPTH, 'A', '', 'actuator', ('recorder',),
+          ('controller',)),
     Topic(DAMPER_FORCE, JOINT_STATE, 1000, _R, DEPTH, 'N (effort[0]), N s/m (effort[1]), m, m/s',
           FRAME_SUSPENSION, 'actuator', ('plant', 'recorder')),
     Topic(TRUTH_STATE, JOINT_STATE, 1000, _R, DEPTH, 'm (position), m/s (velocity)',
@@ -78,9 +79,10 @@ def published_by(node):
     return sorted(n for n, t in TOPICS.items() if t.publisher == node)
 
 
-def subscribed_by(node):
-    """Names of the topics ``node`` subscribes to."""
-    return sorted(n for n, t in TOPICS.items() if node in t.subscribers)
+def subscribed_by(node, optional=False):
+    """Names of the topics ``node`` subscribes to (``optional``: also those it may)."""
+    return sorted(n for n, t in TOPICS.items()
+                  if node in t.subscribers or (optional and node in t.optional_subscribers))
 
 
 def yaml_path():
@@ -114,7 +116,8 @@ def check_against_yaml(path=None):
                'reliability': y.get('qos', {}).get('reliability'),
                'depth': y.get('qos', {}).get('depth'), 'units': y.get('units'),
                'frame_id': y.get('frame_id'), 'publisher': y.get('publisher'),
-               'subscribers': tuple(y.get('subscribers', ()))}
+               'subscribers': tuple(y.get('subscribers', ())),
+               'optional_subscribers': tuple(y.get('optional_subscribers', ()))}
         for key, value in got.items():
             if value != getattr(t, key) and not (key == 'rate' and value == float(t.rate)):
                 errors.append(f'{name}.{key}: YAML {value!r} != contract.py {getattr(t, key)!r}')

@@ -6,17 +6,21 @@ truth. Fills the measurement vector of :mod:`mr_suspension.control.laws` and run
 law (:class:`~mr_suspension.core.stepper.ControllerStepper`; the control core estimates body
 velocity and stroke rate from these sensors), publishes ``current_command``. The measured coil
 current fills the field-current slot (NaN until the first one: the core then uses its last
-command).
+command). Only the laws that invert the damper model read that slot
+(:func:`~mr_suspension.control.laws.uses_field`); with ``coil_feedback: auto`` the node
+subscribes to ``coil_current`` only for them (one message a sample less on the loop otherwise).
 
 * ``trigger: sample`` (default): the law runs once per sensor sample, as soon as the three
   sensor messages with the same stamp are in (the sensors' fixed rate; no added latency).
   ``trigger: timer``: a wall timer at ``rate`` runs the law on the newest value of every sensor
   (for sensor drivers whose stamps are not synchronised).
-* Real time (both triggers): a watchdog at ``rate``: if any sensor is older than
-  ``sensor_timeout`` (or never arrived), or a value is NaN, it publishes ``fallback_current``
-  instead and logs it once per episode (and the recovery).
-* Lock-step: sample trigger that also waits for the coil current of the step before, so the
-  run is deterministic; no watchdog (the plant waits for the loop).
+* Real time (both triggers): a watchdog every ``watchdog_period`` (``trigger: sample``; the
+  ``rate`` timer with ``trigger: timer``): if any sensor is older than ``sensor_timeout`` (or
+  never arrived), or a value is NaN, it publishes ``fallback_current`` instead, so the fallback
+  starts at most ``sensor_timeout + watchdog_period`` after the last sample, and logs it once per
+  episode (and the recovery).
+* Lock-step: sample trigger that also waits for the coil current of the step before (when it
+  subscribes to it), so the run is deterministic; no watchdog (the plant waits for the loop).
 """
 
 from collections import deque
@@ -55,11 +59,22 @@ class ControllerNode(Node):
                                       'sample ("sample") or on a wall timer ("timer")')
         if self.trigger not in ('sample', 'timer'):
             raise ValueError(f'controller: trigger must be sample or timer, got {self.trigger!r}')
+        self.watchdog_period = common.declare(
+            self, d, 'watchdog_period', 'Real time, trigger sample: stale-sensor check period '
+            '[s]; the fallback starts within sensor_timeout + watchdog_period', 0.0005, 1.0)
+        coil_feedback = common.declare(
+            self, d, 'coil_feedback', 'Subscribe to the measured coil_current: "auto" (if the '
+            'law reads the field current), "on" or "off" (the law uses its last command)')
+        if coil_feedback not in ('auto', 'on', 'off'):
+            raise ValueError('controller: coil_feedback must be auto, on or off, got '
+                             f'{coil_feedback!r}')
         recorders = common.declare(self, d, 'recorders', 'Lock-step: recorders to wait for on '
                                    'current_command before the first command', 0, 10)
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
                                                  'as JSON here on exit ("" = off)'))
         self.stepper = ControllerStepper(self.config).warm_up()
+        self.use_coil = coil_feedback == 'on' or \
+            (coil_feedback == 'auto' and self.stepper.uses_field)
         self.finished = threading.Event()
         self.pub_cmd = self.create_publisher(Float64, c.CURRENT_COMMAND,
                                              common.qos(c.CURRENT_COMMAND, self.lockstep))
@@ -72,8 +87,9 @@ class ControllerNode(Node):
             self.create_subscription(cls, topic, cb,
                                      common.qos(topic, self.lockstep, loop_reader=True),
                                      qos_overriding_options=over, raw=True)
-        self.create_subscription(Float64, c.COIL_CURRENT, self._on_coil,
-                                 common.qos(c.COIL_CURRENT, self.lockstep), raw=True)
+        if self.use_coil:
+            self.create_subscription(Float64, c.COIL_CURRENT, self._on_coil,
+                                     common.qos(c.COIL_CURRENT, self.lockstep), raw=True)
         self.tpl_cmd = cdr.Template(Float64(), ('data',), stamped=False)
         # Newest value and monotonic arrival time per sensor.
         self.latest = {c.IMU_BODY: None, c.IMU_WHEEL: None, c.STROKE: None}
@@ -97,7 +113,8 @@ class ControllerNode(Node):
         if self.lockstep:
             self.gate = common.MatchGate(self, [(self.pub_cmd, 1 + recorders)], self._run_samples)
         else:
-            self.timer = self.create_timer(self.config.dt, self._on_tick)
+            period = self.config.dt if self.trigger == 'timer' else self.watchdog_period
+            self.timer = self.create_timer(period, self._on_tick)
 
     # -- inputs ----------------------------------------------------------------------------
 
@@ -201,9 +218,9 @@ class ControllerNode(Node):
                 del self.pending[key]  # real time: a sample never completed (message lost)
                 continue
             if self.lockstep:
-                if self.k > 0 and not self.coil:
+                if self.use_coil and self.k > 0 and not self.coil:
                     return
-                field = self.coil.popleft() if self.k > 0 else math.nan
+                field = self.coil.popleft() if self.use_coil and self.k > 0 else math.nan
             else:
                 field = self.coil_latest
             del self.pending[key]

@@ -92,6 +92,10 @@ class PlantNode(Node):
         self.force_wait = common.declare(self, d, 'force_wait', 'Real time: longest wait for '
                                          'the damper force of a due step before stepping with '
                                          'the previous force [s]', 0.0, 0.1)
+        self.sensors_after_force = common.declare(
+            self, d, 'sensors_after_force', 'Real time: publish the sensors and tyre '
+            'force once its damper force is in (at the latest with the next step), so the '
+            'plant-actuator coupling has the CPU first')
         self.gravity = self.config.car.g
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
                                                  'as JSON here on exit ("" = off)'))
@@ -121,6 +125,7 @@ class PlantNode(Node):
         self.force = None
         self.forces = {}
         self.sent = {}
+        self.deferred = ()  # real time: (pub, raw) of the sample's sensors not yet published
         self.n_duplicates = 0
         self.n_resends = 0
         self.resend_mark = (-1, time.monotonic())
@@ -257,15 +262,27 @@ class PlantNode(Node):
         self.pub_truth.publish(truth)
         raws = (truth, self.tpl_imu_s.pack(ns, p.a_s + self.gravity),
                 self.tpl_imu_u.pack(ns, p.a_u + self.gravity), self.tpl_stroke.pack(ns, x))
-        self.pub_imu_s.publish(raws[1])
-        self.pub_imu_u.publish(raws[2])
-        self.pub_stroke.publish(raws[3])
+        rest = tuple(zip(self.loop_pubs[1:], raws[1:])) \
+            + ((self.pub_tyre, self.tpl_tyre.pack(ns, p.f_t)),)
         if self.lockstep:
             self.sent[p.k] = raws
             self.sent.pop(p.k - self.coupling_delay - 2, None)
-        self.pub_tyre.publish(self.tpl_tyre.pack(ns, p.f_t))
+        elif self.sensors_after_force and not p.done:
+            # Real time: while the actuator answers, the sensors' readers (controller,
+            # recorders) would wake and take the CPU it needs; they get them once the force is
+            # in (before the next step at the latest), 0.1-0.5 ms later.
+            self.deferred = rest
+            return
+        for pub, raw in rest:
+            pub.publish(raw)
         if self.pub_clock is not None:
             self.pub_clock.publish(self.tpl_clock.pack(ns))
+
+    def _flush_deferred(self):
+        """Real time: publish the sensors held back by ``sensors_after_force``."""
+        rest, self.deferred = self.deferred, ()
+        for pub, raw in rest:
+            pub.publish(raw)
 
     # -- stepping --------------------------------------------------------------------------
 
@@ -292,6 +309,8 @@ class PlantNode(Node):
             self._pump()
             return
         self._count_force(k, now)
+        if k == self.plant.k:
+            self._flush_deferred()
         if self.force is not None and k < self.force[0]:
             return
         self.force = (k, effort[0], effort[1], velocity[0])
@@ -352,6 +371,8 @@ class PlantNode(Node):
 
     def _advance(self):
         t_in = time.monotonic()
+        if self.deferred:
+            self._flush_deferred()
         p = self.plant
         if self.force is None:
             f_d, c_d = 0.0, 0.0

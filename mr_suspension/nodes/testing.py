@@ -45,16 +45,20 @@ def add(executor, nodes, node):
     return node
 
 
-def run_in_process(road, duration, controller, lockstep, coupling_delay=None, **plant_params):
+def run_in_process(road, duration, controller, lockstep, coupling_delay=None, damper=None,
+                   **plant_params):
     """Run plant, controller and actuator in one executor; return (summary, plant counters).
 
     The summary has the RMS body acceleration, working space and dynamic tyre load of the
     plant's samples, as :func:`mr_suspension.nodes.launch.offline_summary` has them; the
     counters are the plant's late forces, re-sends and repeated forces. ``coupling_delay``
-    (plant and actuator; default from ``config/nodes``); ``plant_params`` override further
-    plant parameters (``resend_after``, ...).
+    (plant and actuator; default from ``config/nodes``); ``damper`` (all nodes; default from
+    ``config/nodes``); ``plant_params`` override further plant parameters (``resend_after``,
+    ...).
     """
     common_p = {'lockstep': lockstep, 'controller': controller}
+    if damper is not None:
+        common_p['damper'] = damper
     if coupling_delay is not None:
         plant_params['coupling_delay'] = coupling_delay
     act_p = {} if coupling_delay is None else {'coupling_delay': coupling_delay}
