@@ -29,6 +29,7 @@ def test_node_set_processes_agree_with_offline(tmp_path, lockstep, delay, tol):
             name = topic if topic == c.CLOCK else '/front_left/' + topic
             assert counts[name] == published, topic  # nothing lost on the way to the bag
     assert counts['/front_left/' + c.DAMPER_FORCE] == res['stats']['actuator']['motion_samples']
+    assert res['stats']['recorder']['niceness'] == 10  # config/nodes/recorder.yaml
     print('lockstep' if lockstep else 'realtime', res['agreement'],
           res['stats']['plant'].get('steps_per_s'))
     for key, diff in res['agreement'].items():
@@ -54,3 +55,19 @@ def test_recorder_closes_bag_on_sigterm(tmp_path):
     assert 'closed' in out
     with Reader(bag) as reader:
         assert {x.topic for x in reader.connections} >= {'/imu/body', '/clock'}
+
+
+def test_lower_priority_raises_every_thread(tmp_path):
+    """The recorder's niceness reaches all threads of its process (checked in a child)."""
+    code = ('import os, threading, time\n'
+            'from mr_suspension.nodes.common import lower_priority\n'
+            'ev = threading.Event()\n'
+            't = threading.Thread(target=ev.wait); t.start()\n'
+            'print(lower_priority(7))\n'
+            'print(sorted({os.getpriority(os.PRIO_PROCESS, int(x)) '
+            'for x in os.listdir("/proc/self/task")}))\n'
+            'print(lower_priority(3))\n'
+            'ev.set(); t.join()\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=60, check=True).stdout.split()
+    assert out == ['7', '[7]', '7']

@@ -88,6 +88,25 @@ class MatchGate:
             self.retry()
 
 
+def lower_priority(niceness):
+    """Raise the nice value of every thread of this process to at least ``niceness``.
+
+    Linux keeps a nice value per thread and the middleware's threads already run when a node is
+    built, so each one in ``/proc/self/task`` is set (threads started later inherit it). Raising
+    it needs no privileges. Returns the nice value of the calling thread afterwards.
+    """
+    if niceness <= os.getpriority(os.PRIO_PROCESS, 0):
+        return os.getpriority(os.PRIO_PROCESS, 0)
+    tids = [int(t) for t in os.listdir('/proc/self/task')] \
+        if os.path.isdir('/proc/self/task') else [0]
+    for tid in tids:
+        try:
+            os.setpriority(os.PRIO_PROCESS, tid, niceness)
+        except OSError:
+            pass  # a thread that ended meanwhile
+    return os.getpriority(os.PRIO_PROCESS, 0)
+
+
 def drain(executor, node, idle=0.1, limit=3.0):
     """Spin until ``node.last_input`` (monotonic time) is ``idle`` seconds old (max ``limit``)."""
     end = time.monotonic() + limit
@@ -264,6 +283,8 @@ def run(node_cls, args=None):
     node = None
     try:
         node = node_cls(context=context)
+        if getattr(node, 'niceness', 0):
+            lower_priority(node.niceness)  # a process of its own: whole process, DDS included
         executor = EventsExecutor(context=context)
         executor.add_node(node)
         finished = getattr(node, 'finished', threading.Event())

@@ -9,17 +9,19 @@ header stamp of stamped messages and ``/clock``, the newest of those for the oth
 message whose stamp is not newer than the last one on its topic (a sample re-sent after a
 lock-step stall) is recorded once.
 
-The recorder needs no low latency, so it does not wake for every message: its subscriptions
-sit on an internal node (``<name>_taps``, not spun by any executor) whose middleware queues
-(depth 1000, one second at 1 kHz) fill between polls; every ``poll_period`` the node takes all
-queued messages and writes them in order of reception. At 1 kHz on seven topics that is about
-200 wake-ups a second instead of 7000, which leaves the CPU to the control loop. On
-SIGINT/SIGTERM it keeps polling until the queues are drained, then closes the bag (metadata
-written), so no received message is lost.
+The recorder needs no low latency. Run as a process of its own it lowers its CPU priority
+(``niceness``, default 10), so on a small machine the control loop's wake-ups go first. It does
+not wake for every message either: its subscriptions sit on an internal node (``<name>_taps``,
+not spun by any executor) whose middleware queues (depth 1000, one second at 1 kHz) fill
+between polls; every ``poll_period`` the node takes all queued messages and writes them in
+order of reception. At 1 kHz on seven topics that is about 200 wake-ups a second instead of
+7000, which leaves the CPU to the control loop. On SIGINT/SIGTERM it keeps polling until the
+queues are drained, then closes the bag (metadata written), so no received message is lost.
 """
 
 from datetime import datetime
 import importlib
+import os
 from pathlib import Path
 import struct
 import threading
@@ -60,6 +62,8 @@ class RecorderNode(Node):
                                          'message arrived for this long [s]', 0.01, 10.0)
         poll_period = common.declare(self, d, 'poll_period', 'Take the queued messages this '
                                      'often [s] (queues hold 1 s at 1 kHz)', 0.0005, 0.5)
+        niceness = common.declare(self, d, 'niceness', 'Run at this nice value (0 = as '
+                                  'started; higher yields the CPU to the control loop)', 0, 19)
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
                                                  'as JSON here on exit ("" = off)'))
         if storage not in STORAGES:
@@ -102,6 +106,7 @@ class RecorderNode(Node):
             timed = self.lockstep and (full == c.CLOCK or t.type in (c.IMU, c.JOINT_STATE))
             self.sources.append((sub, conn, full, timed, [-1]))
         self.poll_timer = self.create_timer(poll_period, self._poll)
+        self.niceness = niceness  # applied by common.run (a process of its own) only
         self.get_logger().info(f'recorder: writing {len(names)} topics to {self.path} '
                                f'({storage})')
 
@@ -164,7 +169,8 @@ class RecorderNode(Node):
         self.get_logger().info(f'recorder: closed {self.path} with '
                                f'{sum(self.counts.values())} messages')
         self.stats.data.update(path=str(self.path), counts=self.counts,
-                               repeated_dropped=self.repeated)
+                               repeated_dropped=self.repeated,
+                               niceness=os.getpriority(os.PRIO_PROCESS, 0))
         self.stats.write()
 
     def destroy_node(self):
