@@ -101,6 +101,9 @@ def report_lockstep(res, duration, label):
            if 'cpu_s' in st}
     print('   CPU per step [us]: ' + ', '.join(f'{n} {v:.0f}' for n, v in cpu.items())
           + f' (total {sum(cpu.values()):.0f} on 2 cores)')
+    rows = losses(res)
+    print(f'   messages lost: {sum(sent - got for _, sent, got in rows)} over {len(rows)} links '
+          f'({sum(sent for _, sent, _ in rows)} messages)')
     if 'agreement' in res:
         print('   vs offline simulator [%]: ' + ', '.join(
             f'{k} {v:+.3f}' for k, v in res['agreement'].items()))

@@ -113,3 +113,40 @@ def test_empty_bag_gives_clear_error(tmp_path):
     with ros_context() as (ctx, ex, nodes):
         with pytest.raises(ValueError, match='no messages'):
             ReplayNode(context=ctx, parameter_overrides=params(bag=str(bag)))
+
+
+class _Handle:
+    """Stands in for a subscription's middleware handle: hands out queued (raw, info) pairs."""
+
+    def __init__(self, queue):
+        self.queue = list(queue)
+
+    def take_message(self, _msg_type, _raw):
+        return self.queue.pop(0) if self.queue else None
+
+
+class _Sub:
+    def __init__(self, queue):
+        self.handle = _Handle(queue)
+        self.msg_type = Imu
+
+
+def test_recorder_keeps_publication_order_of_repaired_samples(tmp_path):
+    """A repaired sample (received after later ones, delivered before them) is not dropped."""
+    from mr_suspension.nodes.cdr import Template
+    tpl = Template(Imu(), ('linear_acceleration.z',))
+    with ros_context() as (ctx, ex, nodes):
+        rec = add(ex, nodes, RecorderNode(context=ctx, namespace=NS, parameter_overrides=params(
+            output=str(tmp_path / 'bag'), lockstep=True, topics='imu/body')))
+        _, conn, full, timed, last = rec.sources[0]
+        # Samples 0..5 taken in order; sample 2 was repaired, so it was received last.
+        received = [10, 11, 50, 12, 13, 14]
+        queue = [(bytes(tpl.pack(k * 1_000_000, float(k))), {'received_timestamp': t})
+                 for k, t in enumerate(received)]
+        rec.sources = [(_Sub(queue), conn, full, timed, last)]
+        assert rec._poll() == 6
+        rec.close()
+        assert rec.repeated == 0
+    times, msgs = read_bag(tmp_path / 'bag')[NS + '/' + c.IMU_BODY]
+    assert [m.linear_acceleration.z for m in msgs] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+    assert times == [k * 1_000_000 for k in range(6)]

@@ -111,15 +111,22 @@ class RecorderNode(Node):
                                f'({storage})')
 
     def _poll(self):
-        """Take every queued message and write them in order of reception."""
+        """Take every queued message and write them in order of reception.
+
+        A topic's messages keep the order they are taken in (the publication order): a sample
+        the middleware repaired arrives later than the ones after it but is delivered before
+        them, so its key is the latest reception time of the topic so far.
+        """
         batch = []
         for source in self.sources:
             sub = source[0]
+            key = 0
             while True:
                 got = sub.handle.take_message(sub.msg_type, True)
                 if got is None:
                     break
-                batch.append((got[1]['received_timestamp'], len(batch), got[0], source))
+                key = max(key, got[1]['received_timestamp'])
+                batch.append((key, len(batch), got[0], source))
         if not batch:
             return 0
         batch.sort()
