@@ -9,18 +9,27 @@ second across processes, with the default one-sample coupling (``coupling_delay`
 actuator work concurrently) with and without the recorder, and in exact mode (``coupling_delay``
 0, the offline simulator's step order) without it.
 
+Two references come first, because this is a shared machine: seconds per million iterations of
+a Python loop, and the CPU per message of a two-process ping-pong through the same middleware
+(``benchmarks/pingpong.py``); lock-step CPU per step is also given in ping-pong messages, a
+figure that load on the machine changes much less than steps per second.
+
 Usage: ``python benchmarks/bench_nodes.py [--duration 30] [--lockstep-duration 5]``.
 Targets: 1 kHz with zero loss, loop latency p99 < 2 ms, lock-step >= 3x real time.
 """
 
 import argparse
+import json
 from pathlib import Path
+import random
 import shutil
+import subprocess
+import sys
 import tempfile
 import time
 
 from mr_suspension.nodes import contract as c
-from mr_suspension.nodes.launch import run_node_set
+from mr_suspension.nodes.launch import _env, run_node_set
 
 ROAD = '{type: iso8608, road_class: C, speed: 20.0, seed: 1}'
 
@@ -88,7 +97,7 @@ def report_realtime(res, duration):
             f'{k} {v:+.3f}' for k, v in res['agreement'].items()))
 
 
-def report_lockstep(res, duration, label):
+def report_lockstep(res, duration, label, hop=None):
     """Print the lock-step figures."""
     p = res['stats']['plant']
     print(f'== lock-step, separate processes, {label}: {p["steps"]} steps ({duration:g} s '
@@ -99,8 +108,9 @@ def report_lockstep(res, duration, label):
           f'{1e3 * p["latency_p99_s"]:.3f} ms; lost samples re-sent {p.get("resends", 0)} times')
     cpu = {n: 1e6 * st['cpu_s'] / max(p['steps'], 1) for n, st in res['stats'].items()
            if 'cpu_s' in st}
+    hops = f' = {sum(cpu.values()) * 1e-6 / hop:.1f} ping-pong messages' if hop else ''
     print('   CPU per step [us]: ' + ', '.join(f'{n} {v:.0f}' for n, v in cpu.items())
-          + f' (total {sum(cpu.values()):.0f} on 2 cores)')
+          + f' (total {sum(cpu.values()):.0f} on 2 cores{hops})')
     rows = losses(res)
     print(f'   messages lost: {sum(sent - got for _, sent, got in rows)} over {len(rows)} links '
           f'({sum(sent for _, sent, _ in rows)} messages)')
@@ -123,6 +133,23 @@ def machine_reference(n=2_000_000):
     return (time.perf_counter() - t0) * 1e6 / n
 
 
+def middleware_reference(out_dir, n=5000):
+    """CPU per message [s] and wall time per round trip [s] of a two-process ping-pong.
+
+    ``benchmarks/pingpong.py``: one message in and one out per message, the same middleware
+    path as a lock-step hop. Measured just before the node set, it tells a machine whose
+    wake-ups are slow right now (which the Python loop reference does not show) from a slow
+    node set.
+    """
+    env = _env(random.randint(101, 200), out_dir)
+    script = str(Path(__file__).with_name('pingpong.py'))
+    procs = [subprocess.Popen([sys.executable, script, role, str(n)], env=env,
+                              stdout=subprocess.PIPE, text=True) for role in ('b', 'a')]
+    rows = [json.loads(p.communicate(timeout=180)[0].strip().splitlines()[-1]) for p in procs]
+    return (sum(r['cpu_per_message_s'] for r in rows) / len(rows),
+            sum(r['round_trip_s'] for r in rows) / len(rows))
+
+
 def main(argv=None):
     """Run the benchmark and print the figures."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -134,6 +161,9 @@ def main(argv=None):
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix='bench_nodes_'))
     print(f'machine reference: {machine_reference():.3f} s per million Python loop iterations '
           '(larger = slower machine right now)')
+    hop, round_trip = middleware_reference(out)
+    print(f'middleware reference: {hop * 1e6:.1f} us of CPU per message (one in, one out) and '
+          f'{round_trip * 1e6:.0f} us per round trip, two-process ping-pong')
     try:
         res = run_node_set(out / 'realtime', duration=args.duration, road=ROAD,
                            controller=args.controller, lockstep=False,
@@ -148,7 +178,7 @@ def main(argv=None):
                                controller=args.controller, lockstep=True, record=record,
                                coupling_delay=delay,
                                timeout=120.0 + 20.0 * args.lockstep_duration)
-            report_lockstep(res, args.lockstep_duration, label)
+            report_lockstep(res, args.lockstep_duration, label, hop)
     finally:
         if not args.out:
             shutil.rmtree(out, ignore_errors=True)
