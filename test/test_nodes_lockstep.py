@@ -128,3 +128,14 @@ def test_realtime_agrees_with_offline(scenario, controller):
     print(scenario, controller, 'real time, late forces', counters['late_forces'], diffs)
     for key, diff in diffs.items():
         assert abs(diff) < 2.0, (key, diff)
+
+
+@pytest.mark.parametrize('after_force', [True, False])
+def test_realtime_agrees_with_either_sensor_order(after_force):
+    """Sensors held back until the force is in (default) or published at once: within 2 %."""
+    road = SCENARIOS['bump']
+    nodes, counters = run_in_process(road, 1.0, 'skyhook_onoff', False,
+                                     sensors_after_force=after_force)
+    offline = offline_summary(corner_config(controller='skyhook_onoff'), road, 1.0)
+    for key, diff in agreement(nodes, offline).items():
+        assert abs(diff) < 2.0, (after_force, key, diff)
