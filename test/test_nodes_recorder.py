@@ -1,5 +1,7 @@
 """Recorder bags read back with independent readers; replay publishes them with their timing."""
 
+import time
+
 from mcap.reader import make_reader
 import pytest
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
@@ -150,3 +152,32 @@ def test_recorder_keeps_publication_order_of_repaired_samples(tmp_path):
     times, msgs = read_bag(tmp_path / 'bag')[NS + '/' + c.IMU_BODY]
     assert [m.linear_acceleration.z for m in msgs] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
     assert times == [k * 1_000_000 for k in range(6)]
+
+
+class _Endless:
+    """A handle whose queue never runs dry (a publisher that keeps going while the bag closes)."""
+
+    def __init__(self, raw):
+        self.raw = raw
+        self.k = 0
+
+    def take_message(self, _msg_type, _raw):
+        self.k += 1
+        return self.raw, {'received_timestamp': self.k}
+
+
+def test_recorder_close_is_bounded_while_messages_keep_coming(tmp_path):
+    from mr_suspension.nodes.cdr import Template
+    raw = bytes(Template(Imu(), ('linear_acceleration.z',)).pack(0, 1.0))
+    with ros_context() as (ctx, ex, nodes):
+        rec = add(ex, nodes, RecorderNode(context=ctx, namespace=NS, parameter_overrides=params(
+            output=str(tmp_path / 'bag'), topics='imu/body')))
+        sub = _Sub([])
+        sub.handle = _Endless(raw)
+        _, conn, full, timed, last = rec.sources[0]
+        rec.sources = [(sub, conn, full, timed, last)]
+        t0 = time.monotonic()
+        rec.close()
+        assert time.monotonic() - t0 < 10.0
+        assert rec.closed and rec.counts[full] > 0
+    assert (tmp_path / 'bag' / 'metadata.yaml').is_file()

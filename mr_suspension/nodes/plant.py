@@ -9,7 +9,10 @@ force of the step that ended there.
   newest damper force, moved to the present stroke rate along its tangent
   (:meth:`~mr_suspension.core.stepper.PlantStepper.coupled`). If the force of the present sample
   has not arrived yet the force of the sample before is used: one sample of coupling latency,
-  stable because the stiff part acts through the tangent inside the implicit step.
+  stable because the stiff part acts through the tangent inside the implicit step. With
+  ``sensors_after_force`` (default) a sample's sensors and tyre force go out once its damper
+  force is in (before the next step at the latest), so their readers do not take the CPU the
+  actuator needs for the force.
 * Lock-step (``lockstep: true``): after publishing sample ``k`` the plant waits for the damper
   force of sample ``k``, then steps; time is simulated and published on ``/clock``. This is the
   simulator's step order exactly, reproducible and faster than real time.
@@ -267,14 +270,13 @@ class PlantNode(Node):
         if self.lockstep:
             self.sent[p.k] = raws
             self.sent.pop(p.k - self.coupling_delay - 2, None)
-        elif self.sensors_after_force and not p.done:
+        self.deferred = rest
+        if not self.lockstep and self.sensors_after_force and not p.done:
             # Real time: while the actuator answers, the sensors' readers (controller,
             # recorders) would wake and take the CPU it needs; they get them once the force is
             # in (before the next step at the latest), 0.1-0.5 ms later.
-            self.deferred = rest
             return
-        for pub, raw in rest:
-            pub.publish(raw)
+        self._flush_deferred()
         if self.pub_clock is not None:
             self.pub_clock.publish(self.tpl_clock.pack(ns))
 

@@ -121,7 +121,7 @@ class RecorderNode(Node):
         for source in self.sources:
             sub = source[0]
             key = 0
-            while True:
+            for _ in range(c.DEPTH):  # at most a full queue, so a poll always ends
                 got = sub.handle.take_message(sub.msg_type, True)
                 if got is None:
                     break
@@ -165,9 +165,9 @@ class RecorderNode(Node):
 
     def close(self):
         """Take what is still queued, close the bag (writes metadata) and the statistics file."""
-        if not self.closed:
-            while self._poll():
-                pass
+        end = time.monotonic() + 1.0
+        while not self.closed and self._poll() and time.monotonic() < end:
+            pass  # bounded: publishers that keep going must not hold the bag open
         with self.lock:
             if self.closed:
                 return
