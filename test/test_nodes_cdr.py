@@ -94,3 +94,13 @@ def test_template_rejects_unknown_or_missing_slots():
         cdr.Template(Imu(), ('linear_acceleration.w',))
     with pytest.raises(IndexError):
         cdr.Template(JointState(), ('position[0]',))
+
+
+def test_stamp_of_stamped_messages_and_clock():
+    from rosgraph_msgs.msg import Clock
+    ns = 12 * 1_000_000_000 + 345_678_901
+    for tpl in (cdr.Template(Imu(), ('linear_acceleration.z',)), cdr.Template(Clock(), ()),
+                cdr.Template(JointState(), ())):
+        raw = tpl.pack(ns, *([1.0] * len(tpl.offsets)))
+        assert cdr.stamp(raw) == ns
+    assert cdr.stamp(b'\x00\x00' + bytes(10)) is None  # big-endian CDR: not read here

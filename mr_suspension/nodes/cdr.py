@@ -21,6 +21,7 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64
 
 _I3 = struct.Struct('<iII')
+_STAMP = struct.Struct('<iI')
 _U32 = struct.Struct('<I')
 _D = struct.Struct('<d')
 _IMU_SKIP = 8 * (4 + 9 + 3 + 9)  # orientation, its covariance, angular velocity, covariance
@@ -28,6 +29,18 @@ _IMU_SKIP = 8 * (4 + 9 + 3 + 9)  # orientation, its covariance, angular velocity
 
 def _plain_le(raw):
     return raw[0:2] == b'\x00\x01'
+
+
+def stamp(raw):
+    """Return the leading ``builtin_interfaces/Time`` [ns] of a serialized message, or None.
+
+    Stamped messages (``Imu``, ``JointState``: ``header.stamp``) and ``rosgraph_msgs/Clock``
+    start with it; None if ``raw`` is not plain little-endian CDR.
+    """
+    if not _plain_le(raw):
+        return None
+    sec, nsec = _STAMP.unpack_from(raw, 4)
+    return sec * 1_000_000_000 + nsec
 
 
 def _header(raw):
@@ -168,9 +181,6 @@ class Template:
         for at, value in zip(self.offsets, values):
             _D.pack_into(buf, at, value)
         return bytes(buf)
-
-
-_STAMP = struct.Struct('<iI')
 
 
 def _path(slot):

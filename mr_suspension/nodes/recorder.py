@@ -23,18 +23,15 @@ from datetime import datetime
 import importlib
 import os
 from pathlib import Path
-import struct
 import threading
 import time
 
 from rclpy.node import Node
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from mr_suspension.nodes import common, contract as c
-from mr_suspension.nodes.cdr import typestore
+from mr_suspension.nodes import cdr, common, contract as c
 
 NODE = 'recorder'
-_STAMP = struct.Struct('<iI')
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
 
@@ -84,7 +81,7 @@ class RecorderNode(Node):
         self.writer = Writer(self.path, version=9, storage_plugin=STORAGES[storage])
         self.writer.open()
         self.closed = False
-        store = typestore()
+        store = cdr.typestore()
         self.counts = {}
         self.repeated = 0
         self.sim_ns = None
@@ -141,9 +138,8 @@ class RecorderNode(Node):
         return len(batch)
 
     def _write(self, received, raw, conn, full, timed, last):
-        if timed and raw[0:2] == b'\x00\x01':
-            sec, nsec = _STAMP.unpack_from(raw, 4)
-            stamp = sec * 1_000_000_000 + nsec
+        stamp = cdr.stamp(raw) if timed else None
+        if stamp is not None:
             if stamp <= last[0]:
                 self.repeated += 1  # re-sent after a lock-step stall: recorded once
                 return
