@@ -5,16 +5,21 @@ road: achieved step rate, plant timer jitter (|period - 1 ms|) p50/p99, sensor-t
 latency p50/p99 (plant publishes sample k -> plant receives the damper force for sample k, via
 the actuator), late forces, messages lost on every link, CPU per node (fraction of one core
 over the run). Then lock-step (simulated time) for ``--lockstep-duration`` seconds: steps per
-second across processes, with the default one-sample coupling (``coupling_delay`` 1; plant and
-actuator work concurrently) with and without the recorder, and in exact mode (``coupling_delay``
-0, the offline simulator's step order) without it.
+second across processes with the default one-sample coupling (``coupling_delay`` 1; plant and
+actuator work concurrently) and no recorder, ``--repeats`` times (median and range), each run
+right after the bare ring below; then once with the recorder, and once in exact mode
+(``coupling_delay`` 0, the offline simulator's step order) without it.
 
-Two references come first, because this is a shared machine: seconds per million iterations of
-a Python loop, and the CPU per message of a two-process ping-pong through the same middleware
-(``benchmarks/pingpong.py``); lock-step CPU per step is also given in ping-pong messages, a
-figure that load on the machine changes much less than steps per second.
+Three references, because this is a shared machine whose speed changes from minute to minute:
+seconds per million iterations of a Python loop; the CPU per message of a two-process ping-pong
+through the same middleware (``benchmarks/pingpong.py``; lock-step CPU per step is also given
+in ping-pong messages); and the bare lock-step ring (``benchmarks/ring.py``): the node set's
+three processes, topics, QoS and messages with no work in the nodes, the ceiling any ``rclpy``
+node set with this contract reaches here at that moment. Node set / ring is the share of that
+ceiling the nodes' own work leaves, a figure the machine's load moves much less.
 
-Usage: ``python benchmarks/bench_nodes.py [--duration 30] [--lockstep-duration 5]``.
+Usage: ``python benchmarks/bench_nodes.py [--duration 30] [--lockstep-duration 5]
+[--repeats 3]``.
 Targets: 1 kHz with zero loss, loop latency p99 < 2 ms, lock-step >= 3x real time.
 """
 
@@ -23,6 +28,7 @@ import json
 from pathlib import Path
 import random
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -150,11 +156,48 @@ def middleware_reference(out_dir, n=5000):
             sum(r['round_trip_s'] for r in rows) / len(rows))
 
 
+def ring_reference(out_dir, n=10000):
+    """Return steps per second and CPU per step [s] of the bare ring (``benchmarks/ring.py``).
+
+    Three processes with the node set's topics, types, QoS and message pattern but no work:
+    what any ``rclpy`` node set with this contract reaches on this machine right now.
+    """
+    env = _env(random.randint(101, 200), out_dir)
+    script = str(Path(__file__).with_name('ring.py'))
+    procs = [subprocess.Popen([sys.executable, script, role, str(n)], env=env,
+                              stdout=subprocess.PIPE, text=True) for role in ('a', 'c', 'p')]
+    rows = [json.loads(p.communicate(timeout=180)[0].strip().splitlines()[-1]) for p in procs]
+    if not all(r['ok'] for r in rows):
+        raise RuntimeError(f'ring reference failed: {rows}')
+    plant = next(r for r in rows if r['role'] == 'p')
+    return plant['steps_per_s'], sum(r['cpu_per_step_s'] for r in rows)
+
+
+def lockstep_rounds(out, args, hop):
+    """Alternate the bare ring and the node set (delay 1, no recorder); return the ratios."""
+    speeds, ratios = [], []
+    for i in range(args.repeats):
+        ring, ring_cpu = ring_reference(out)
+        res = run_node_set(out / f'lockstep_round_{i}', duration=args.lockstep_duration,
+                           road=ROAD, controller=args.controller, lockstep=True, record=False,
+                           coupling_delay=1, timeout=120.0 + 20.0 * args.lockstep_duration)
+        report_lockstep(res, args.lockstep_duration,
+                        f'coupling delay 1 (default), without recorder, round {i + 1}', hop)
+        nodes = res['stats']['plant']['steps_per_s_sustained']
+        speeds.append(nodes)
+        ratios.append(nodes / ring)
+        print(f'   bare ring just before: {ring:.0f} steps/s = {ring * 1e-3:.2f}x real time, '
+              f'{ring_cpu * 1e6:.0f} us CPU per step; node set / ring = {nodes / ring:.2f}')
+    return speeds, ratios
+
+
 def main(argv=None):
     """Run the benchmark and print the figures."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--duration', type=float, default=30.0, help='real-time run [s]')
     ap.add_argument('--lockstep-duration', type=float, default=5.0, help='lock-step run [s]')
+    ap.add_argument('--repeats', type=int, default=3, help='lock-step rounds (ring, then '
+                    'node set) for the median')
     ap.add_argument('--controller', default='skyhook_onoff')
     ap.add_argument('--out', default='', help='keep bags and logs here (default: temporary)')
     args = ap.parse_args(argv)
@@ -169,9 +212,13 @@ def main(argv=None):
                            controller=args.controller, lockstep=False,
                            timeout=120.0 + 3.0 * args.duration)
         report_realtime(res, args.duration)
+        speeds, ratios = lockstep_rounds(out, args, hop)
+        print(f'== lock-step, delay 1, no recorder, median of {len(speeds)} rounds: '
+              f'{statistics.median(speeds) * 1e-3:.2f}x real time (range '
+              f'{min(speeds) * 1e-3:.2f}-{max(speeds) * 1e-3:.2f}x); node set / bare ring '
+              f'{statistics.median(ratios):.2f} (range {min(ratios):.2f}-{max(ratios):.2f})')
         for label, record, delay in (
                 ('coupling delay 1 (default), with recorder', True, 1),
-                ('coupling delay 1 (default), without recorder', False, 1),
                 ('coupling delay 0 (exact), without recorder', False, 0)):
             res = run_node_set(out / f'lockstep_{record}_{delay}',
                                duration=args.lockstep_duration, road=ROAD,

@@ -71,3 +71,18 @@ def test_lower_priority_raises_every_thread(tmp_path):
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                          timeout=60, check=True).stdout.split()
     assert out == ['7', '[7]', '7']
+
+
+def test_benchmark_references_run(tmp_path, repo_root):
+    """The lock-step benchmark's two middleware references run and report sane figures."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location('bench_nodes',
+                                                  repo_root / 'benchmarks' / 'bench_nodes.py')
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    steps_per_s, cpu_per_step = bench.ring_reference(tmp_path, n=300)
+    assert 50.0 < steps_per_s < 1e6
+    assert 1e-6 < cpu_per_step < 0.1
+    cpu_per_message, round_trip = bench.middleware_reference(tmp_path, n=200)
+    assert 1e-6 < cpu_per_message < 0.1
+    assert 1e-6 < round_trip < 0.1
