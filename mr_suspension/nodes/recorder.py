@@ -5,9 +5,13 @@ Uses ``rosbags`` (no rosbag2 install needed); the bag is a standard rosbag2 dire
 Messages are taken serialized (raw CDR) and written as they are, time-stamped at reception like
 ``ros2 bag record``: with the middleware's reception time (system clock) in real time; with
 simulated time in lock-step (``lockstep: true``, as ``ros2 bag record --use-sim-time``): the
-header stamp of stamped messages and ``/clock``, the newest of those for the others; a stamped
-message whose stamp is not newer than the last one on its topic (a sample re-sent after a
-lock-step stall) is recorded once.
+header stamp of stamped messages and ``/clock``; a stamped message whose stamp is not newer than
+the last one on its topic (a sample re-sent after a lock-step stall) is recorded once. The
+lock-step loop's unstamped topics (``current_command``, ``coil_current``,
+``truth/tyre_force``) carry one message per sample, in order, so the ``n``-th one is logged at
+sample ``n``'s time ``n dt``, the same in every run (``dt``: the least positive stamp, once the
+stamps are seen to start at 0 and to be its multiples); until then, or if they are not, at the
+newest simulated time seen.
 
 The recorder needs no low latency. Run as a process of its own it lowers its CPU priority
 (``niceness``, default 10), so on a small machine the control loop's wake-ups go first. It does
@@ -21,6 +25,7 @@ queues are drained, then closes the bag (metadata written), so no received messa
 
 from datetime import datetime
 import importlib
+import math
 import os
 from pathlib import Path
 import threading
@@ -32,6 +37,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from mr_suspension.nodes import cdr, common, contract as c
 
 NODE = 'recorder'
+# Lock-step stamps are k dt; a step below 1 us means wall-clock stamps (a plant in real time).
+MIN_STEP_NS = 1000
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
 
@@ -85,6 +92,8 @@ class RecorderNode(Node):
         self.counts = {}
         self.repeated = 0
         self.sim_ns = None
+        # Lock-step stamps are k dt from k = 0: sample 0 seen, gcd and least positive stamp.
+        self.grid = [False, 0, 0]
         self.last_arrival = time.monotonic()
         # Subscriptions on a node no executor spins: messages wait in the middleware's queues
         # until _poll takes them (no wake-up per message).
@@ -146,12 +155,37 @@ class RecorderNode(Node):
             last[0] = stamp
             if self.sim_ns is None or stamp > self.sim_ns:
                 self.sim_ns = stamp
+            if self.lockstep:
+                self._on_grid(stamp)
+        elif self.lockstep and self._step(self.counts[full]) is not None:
+            stamp = self.counts[full] * self._step(self.counts[full])  # sample n's time
         elif self.lockstep and self.sim_ns is not None:
             stamp = self.sim_ns
         else:
             stamp = received
         self.writer.write(conn, stamp, raw)
         self.counts[full] += 1
+
+    def _on_grid(self, stamp):
+        grid = self.grid
+        if stamp == 0:
+            grid[0] = True
+        else:
+            grid[1] = math.gcd(grid[1], stamp)
+            grid[2] = stamp if not grid[2] else min(grid[2], stamp)
+
+    def _step(self, n):
+        """Return the lock-step step [ns] for message ``n`` if the stamps fix it, else None.
+
+        The stamps must start at 0 and their least positive one (sample 1) must divide all the
+        others; wall-clock stamps (a plant in real time) never do.
+        """
+        zero, gcd, least = self.grid
+        if zero and n == 0:
+            return 0
+        if zero and gcd >= MIN_STEP_NS and gcd == least:
+            return gcd
+        return None
 
     def drain(self, executor):
         """Keep receiving until no message arrived for ``drain_idle`` seconds (at most 10 s)."""
