@@ -19,6 +19,7 @@ setup(
         (os.path.join('share', PACKAGE, os.path.dirname(d)), glob(d + '*.yaml'))
         for d in sorted(glob('config/*/'))
     ] + [
+        (os.path.join('share', PACKAGE, 'config'), ['config/fastdds.xml']),
         (os.path.join('share', PACKAGE, 'msg_defs'), glob('msg_defs/*.yaml')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'PyYAML', 'matplotlib'],

@@ -139,7 +139,7 @@ def machine_reference(n=2_000_000):
     return (time.perf_counter() - t0) * 1e6 / n
 
 
-def middleware_reference(out_dir, n=5000):
+def middleware_reference(n=5000):
     """CPU per message [s] and wall time per round trip [s] of a two-process ping-pong.
 
     ``benchmarks/pingpong.py``: one message in and one out per message, the same middleware
@@ -147,7 +147,7 @@ def middleware_reference(out_dir, n=5000):
     wake-ups are slow right now (which the Python loop reference does not show) from a slow
     node set.
     """
-    env = _env(random.randint(101, 200), out_dir)
+    env = _env(random.randint(101, 200))
     script = str(Path(__file__).with_name('pingpong.py'))
     procs = [subprocess.Popen([sys.executable, script, role, str(n)], env=env,
                               stdout=subprocess.PIPE, text=True) for role in ('b', 'a')]
@@ -156,13 +156,13 @@ def middleware_reference(out_dir, n=5000):
             sum(r['round_trip_s'] for r in rows) / len(rows))
 
 
-def ring_reference(out_dir, n=10000):
+def ring_reference(n=10000):
     """Return steps per second and CPU per step [s] of the bare ring (``benchmarks/ring.py``).
 
     Three processes with the node set's topics, types, QoS and message pattern but no work:
     what any ``rclpy`` node set with this contract reaches on this machine right now.
     """
-    env = _env(random.randint(101, 200), out_dir)
+    env = _env(random.randint(101, 200))
     script = str(Path(__file__).with_name('ring.py'))
     procs = [subprocess.Popen([sys.executable, script, role, str(n)], env=env,
                               stdout=subprocess.PIPE, text=True) for role in ('a', 'c', 'p')]
@@ -177,7 +177,7 @@ def lockstep_rounds(out, args, hop):
     """Alternate the bare ring and the node set (delay 1, no recorder); return the ratios."""
     speeds, ratios = [], []
     for i in range(args.repeats):
-        ring, ring_cpu = ring_reference(out)
+        ring, ring_cpu = ring_reference()
         res = run_node_set(out / f'lockstep_round_{i}', duration=args.lockstep_duration,
                            road=ROAD, controller=args.controller, lockstep=True, record=False,
                            coupling_delay=1, timeout=120.0 + 20.0 * args.lockstep_duration)
@@ -204,7 +204,7 @@ def main(argv=None):
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix='bench_nodes_'))
     print(f'machine reference: {machine_reference():.3f} s per million Python loop iterations '
           '(larger = slower machine right now)')
-    hop, round_trip = middleware_reference(out)
+    hop, round_trip = middleware_reference()
     print(f'middleware reference: {hop * 1e6:.1f} us of CPU per message (one in, one out) and '
           f'{round_trip * 1e6:.0f} us per round trip, two-process ping-pong')
     try:

@@ -1,5 +1,6 @@
 """The node set as separate processes with the recorder (as ``ros2 run`` would start them)."""
 
+import os
 import signal
 import subprocess
 import sys
@@ -73,16 +74,49 @@ def test_lower_priority_raises_every_thread(tmp_path):
     assert out == ['7', '[7]', '7']
 
 
-def test_benchmark_references_run(tmp_path, repo_root):
+def test_benchmark_references_run(repo_root):
     """The lock-step benchmark's two middleware references run and report sane figures."""
     import importlib.util
     spec = importlib.util.spec_from_file_location('bench_nodes',
                                                   repo_root / 'benchmarks' / 'bench_nodes.py')
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
-    steps_per_s, cpu_per_step = bench.ring_reference(tmp_path, n=300)
+    steps_per_s, cpu_per_step = bench.ring_reference(n=300)
     assert 50.0 < steps_per_s < 1e6
     assert 1e-6 < cpu_per_step < 0.1
-    cpu_per_message, round_trip = bench.middleware_reference(tmp_path, n=200)
+    cpu_per_message, round_trip = bench.middleware_reference(n=200)
     assert 1e-6 < cpu_per_message < 0.1
     assert 1e-6 < round_trip < 0.1
+
+
+def test_fastdds_profile_is_used_and_parses(tmp_path, monkeypatch):
+    """config/fastdds.xml is set for the nodes unless the user set a profile; Fast DDS takes it."""
+    from mr_suspension.nodes import common
+    monkeypatch.delenv('FASTDDS_DEFAULT_PROFILES_FILE', raising=False)
+    monkeypatch.delenv('FASTRTPS_DEFAULT_PROFILES_FILE', raising=False)
+    common.ensure_environment()
+    profile = os.environ['FASTDDS_DEFAULT_PROFILES_FILE']
+    assert profile == str(common.fastdds_profile())
+    assert '<heartbeat_period>' in open(profile, encoding='utf-8').read()
+    own = tmp_path / 'own.xml'
+    monkeypatch.setenv('FASTDDS_DEFAULT_PROFILES_FILE', str(own))
+    common.ensure_environment()
+    assert os.environ['FASTDDS_DEFAULT_PROFILES_FILE'] == str(own)  # the user's wins
+    # A process that loads the package's profile: Fast DDS reports no XML error.
+    code = ('from mr_suspension.nodes import common; common.ensure_environment(); import rclpy; '
+            'from rclpy.node import Node; from std_msgs.msg import Float64; '
+            'ctx = rclpy.Context(); rclpy.init(context=ctx); '
+            'Node("x", context=ctx).create_publisher(Float64, "t", 10); '
+            'rclpy.try_shutdown(context=ctx); print("ok")')
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='OFF')
+    env.pop('FASTDDS_DEFAULT_PROFILES_FILE')
+    out = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0 and 'ok' in out.stdout, out.stderr
+    assert 'XMLPARSER' not in out.stdout + out.stderr
+    env['FASTDDS_DEFAULT_PROFILES_FILE'] = str(tmp_path / 'bad.xml')
+    (tmp_path / 'bad.xml').write_text(open(profile, encoding='utf-8').read().replace(
+        'heartbeat_period', 'no_such_period'), encoding='utf-8')
+    out = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True,
+                         timeout=60)
+    assert 'XMLPARSER' in out.stdout + out.stderr  # the check above can fail

@@ -29,11 +29,26 @@ from mr_suspension.nodes import contract
 
 
 def ensure_environment():
-    """Point ``AMENT_PREFIX_PATH`` at this interpreter's prefix if it does not cover it."""
+    """Prepare this process's environment for rclpy; call it before the first ``rclpy.init``.
+
+    Points ``AMENT_PREFIX_PATH`` at this interpreter's prefix if it does not cover it, and
+    ``FASTDDS_DEFAULT_PROFILES_FILE`` at the package's ``config/fastdds.xml`` unless a Fast DDS
+    profile file is already set (the middleware reads it once, at its first participant).
+    """
     prefix = sys.prefix
     parts = [p for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
     if prefix not in parts:
         os.environ['AMENT_PREFIX_PATH'] = os.pathsep.join([prefix] + parts)
+    if not (os.environ.get('FASTDDS_DEFAULT_PROFILES_FILE')
+            or os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE')):
+        profile = fastdds_profile()
+        if profile.is_file():
+            os.environ['FASTDDS_DEFAULT_PROFILES_FILE'] = str(profile)
+
+
+def fastdds_profile():
+    """Return the path of the package's Fast DDS profile (``config/fastdds.xml``)."""
+    return cfg.config_dir() / 'fastdds.xml'
 
 
 def qos(topic, lockstep=False, loop_reader=False):

@@ -29,35 +29,6 @@ from mr_suspension.nodes.common import corner_config
 NODE_ORDER = ('recorder', 'controller', 'actuator', 'plant')
 STOP_ORDER = ('plant', 'controller', 'actuator', 'recorder')
 DEFAULT_ROAD = '{type: bump, height: 0.05}'
-# Fast DDS profile for the node-set processes: more and faster initial discovery announcements
-# (a missed one otherwise costs the 3 s announcement period on a loaded machine) and reliable
-# writers that send heartbeats every 20 ms instead of 3 s, so a sample a reader missed while
-# discovery was still matching it is repaired in milliseconds, not seconds. Without it the
-# lock-step loop could stall for seconds at start.
-FASTDDS_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
-<dds xmlns="http://www.eprosima.com">
-  <profiles>
-    <participant profile_name="mr_suspension_participant" is_default_profile="true">
-      <rtps>
-        <builtin>
-          <discovery_config>
-            <initialAnnouncements>
-              <count>30</count>
-              <period><sec>0</sec><nanosec>50000000</nanosec></period>
-            </initialAnnouncements>
-            <leaseAnnouncement><sec>1</sec><nanosec>0</nanosec></leaseAnnouncement>
-          </discovery_config>
-        </builtin>
-      </rtps>
-    </participant>
-    <data_writer profile_name="mr_suspension_writer" is_default_profile="true">
-      <times>
-        <heartbeat_period><sec>0</sec><nanosec>20000000</nanosec></heartbeat_period>
-      </times>
-    </data_writer>
-  </profiles>
-</dds>
-"""
 
 
 def offline_summary(config, road_spec, duration):
@@ -114,15 +85,11 @@ def agreement(nodes, offline):
             if k in nodes and offline[k] != 0.0}
 
 
-def _env(domain_id, out_dir=None):
+def _env(domain_id):
+    """Environment of a node-set process: this one's, prepared for rclpy, on ``domain_id``."""
     from mr_suspension.nodes.common import ensure_environment
-    ensure_environment()
+    ensure_environment()  # also the Fast DDS profile, config/fastdds.xml
     env = dict(os.environ)
-    if out_dir is not None and not env.get('FASTDDS_DEFAULT_PROFILES_FILE') \
-            and not env.get('FASTRTPS_DEFAULT_PROFILES_FILE'):
-        profile = Path(out_dir) / 'fastdds.xml'
-        profile.write_text(FASTDDS_PROFILE, encoding='utf-8')
-        env['FASTDDS_DEFAULT_PROFILES_FILE'] = str(profile)
     env['ROS_DOMAIN_ID'] = str(domain_id)
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     if env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'OFF':
@@ -188,7 +155,7 @@ def run_node_set(out_dir, duration=3.0, road=DEFAULT_ROAD, vehicle='city_car',
         yaml.safe_dump({f'/**/{n}': {'ros__parameters': params[n]} for n in nodes}, fh)
     if domain_id is None:
         domain_id = random.Random(os.getpid() ^ time.time_ns()).randint(1, 100)
-    env = _env(domain_id, out)
+    env = _env(domain_id)
     procs = {}
     t0 = time.monotonic()
     limit = timeout if timeout is not None else 60.0 + 20.0 * duration
