@@ -187,52 +187,45 @@ def test_recorder_close_is_bounded_while_messages_keep_coming(tmp_path):
     assert (tmp_path / 'bag' / 'metadata.yaml').is_file()
 
 
-def test_recorder_logs_unstamped_lockstep_messages_at_their_sample(tmp_path):
-    """In lock-step the n-th command is logged at n dt, however late it was received."""
+def _record_imu_and_commands(path, stamps, imu_received, cmd_received):
+    """Return the commands' (log times, messages) of a lock-step recorder fed in one poll.
+
+    Imu samples carry ``stamps``; one Float64 command per entry of ``cmd_received`` (its
+    reception time).
+    """
     from std_msgs.msg import Float64
 
     from mr_suspension.nodes.cdr import Template
     imu = Template(Imu(), ('linear_acceleration.z',))
     f64 = Template(Float64(), ('data',), stamped=False)
-    dt = 2_000_000
     with ros_context() as (ctx, ex, nodes):
         rec = add(ex, nodes, RecorderNode(context=ctx, namespace=NS, parameter_overrides=params(
-            output=str(tmp_path / 'bag'), lockstep=True, topics='imu/body,current_command')))
-        (_, c_imu, f_imu, t_imu, l_imu), (_, c_cmd, f_cmd, t_cmd, l_cmd) = rec.sources
-        # Sample k's command is received after the sensors of sample k + 1 (or k + 2).
-        imus = [(bytes(imu.pack(k * dt, 9.81)), {'received_timestamp': 100 * k})
-                for k in range(6)]
-        cmds = [(bytes(f64.pack(0, float(k))), {'received_timestamp': 100 * (k + 1) + 50
-                                                + (100 if k == 3 else 0)})
-                for k in range(5)]
-        rec.sources = [(_Sub(imus), c_imu, f_imu, t_imu, l_imu),
-                       (_Sub(cmds), c_cmd, f_cmd, t_cmd, l_cmd)]
-        assert rec._poll() == 11
+            output=str(path), lockstep=True, topics='imu/body,current_command')))
+        imus = [(bytes(imu.pack(s, 9.81)), {'received_timestamp': t})
+                for s, t in zip(stamps, imu_received)]
+        cmds = [(bytes(f64.pack(0, float(k))), {'received_timestamp': t})
+                for k, t in enumerate(cmd_received)]
+        queues = (imus, cmds)
+        rec.sources = [(_Sub(q),) + src[1:] for q, src in zip(queues, rec.sources)]
+        assert rec._poll() == len(imus) + len(cmds)
         rec.close()
-    times, msgs = read_bag(tmp_path / 'bag')[NS + '/' + c.CURRENT_COMMAND]
+    return read_bag(path)[NS + '/' + c.CURRENT_COMMAND]
+
+
+def test_recorder_logs_unstamped_lockstep_messages_at_their_sample(tmp_path):
+    """In lock-step the n-th command is logged at n dt, however late it was received."""
+    dt = 2_000_000
+    # Sample k's command is received after the sensors of sample k + 1 (or k + 2).
+    times, msgs = _record_imu_and_commands(
+        tmp_path / 'bag', [k * dt for k in range(6)], [100 * k for k in range(6)],
+        [100 * (k + 1) + 50 + (100 if k == 3 else 0) for k in range(5)])
     assert [m.data for m in msgs] == [0.0, 1.0, 2.0, 3.0, 4.0]
     assert times == [k * dt for k in range(5)]
 
 
 def test_recorder_lockstep_with_wall_clock_stamps_keeps_newest_stamp(tmp_path):
     """Stamps off any step grid (a real-time plant): unstamped messages keep the newest stamp."""
-    from std_msgs.msg import Float64
-
-    from mr_suspension.nodes.cdr import Template
-    imu = Template(Imu(), ('linear_acceleration.z',))
-    f64 = Template(Float64(), ('data',), stamped=False)
     wall = [1_795_000_000_123_456_789 + 1_000_123 * k + 7 * k * k for k in range(4)]
-    with ros_context() as (ctx, ex, nodes):
-        rec = add(ex, nodes, RecorderNode(context=ctx, namespace=NS, parameter_overrides=params(
-            output=str(tmp_path / 'bag'), lockstep=True, topics='imu/body,current_command')))
-        (_, c_imu, f_imu, t_imu, l_imu), (_, c_cmd, f_cmd, t_cmd, l_cmd) = rec.sources
-        imus = [(bytes(imu.pack(s, 9.81)), {'received_timestamp': 100 * k})
-                for k, s in enumerate(wall)]
-        cmds = [(bytes(f64.pack(0, float(k))), {'received_timestamp': 100 * k + 50})
-                for k in range(4)]
-        rec.sources = [(_Sub(imus), c_imu, f_imu, t_imu, l_imu),
-                       (_Sub(cmds), c_cmd, f_cmd, t_cmd, l_cmd)]
-        assert rec._poll() == 8
-        rec.close()
-    times, _ = read_bag(tmp_path / 'bag')[NS + '/' + c.CURRENT_COMMAND]
+    times, _ = _record_imu_and_commands(tmp_path / 'bag', wall, [100 * k for k in range(4)],
+                                        [100 * k + 50 for k in range(4)])
     assert times == wall
