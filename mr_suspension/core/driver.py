@@ -110,6 +110,16 @@ def prepare(params, dt):
 
 
 @njit(cache=True)
+def lag_step(y, u, a_rise, a_fall):
+    """One step of a first-order lag with rise/fall factors: ``y + a (u - y)``.
+
+    ``a = 1 - exp(-dt/tau)`` with ``tau`` the rise constant if ``u > y``, else the fall one
+    (exact for a piecewise-constant input); used by the driver lag and the fluid lag.
+    """
+    return y + (a_rise if u > y else a_fall) * (u - y)
+
+
+@njit(cache=True)
 def driver_input(q, s, u):
     """Feed the static-map output ``u`` [A] of this step into the lag and the dead-time buffer.
 
@@ -117,8 +127,7 @@ def driver_input(q, s, u):
     (exact for a piecewise-constant input); ``y`` enters the ring buffer of
     ``round(dead_time / dt)`` samples. Call after :func:`driver_output` of the same step.
     """
-    y = s[DRV_LAG]
-    y += (q[Q_ARISE] if u > y else q[Q_AFALL]) * (u - y)
+    y = lag_step(s[DRV_LAG], u, q[Q_ARISE], q[Q_AFALL])
     s[DRV_LAG] = y
     nd = int(q[Q_NDEAD])
     if nd > 0:
@@ -140,8 +149,7 @@ def driver_output(q, s):
         coil = s[DRV_BUF + int(s[DRV_HEAD])]
     else:
         coil = s[DRV_LAG]
-    f = s[DRV_FLUID]
-    f += (q[Q_FRISE] if coil > f else q[Q_FFALL]) * (coil - f)
+    f = lag_step(s[DRV_FLUID], coil, q[Q_FRISE], q[Q_FFALL])
     s[DRV_FLUID] = f
     return coil, f
 
@@ -160,8 +168,7 @@ def driver_field_ahead(q, s, ahead):
     f = s[DRV_FLUID]
     head = int(s[DRV_HEAD])
     for m in range(1, min(ahead, nd - 1) + 1):
-        coil = s[DRV_BUF + (head + m) % nd]
-        f += (q[Q_FRISE] if coil > f else q[Q_FFALL]) * (coil - f)
+        f = lag_step(f, s[DRV_BUF + (head + m) % nd], q[Q_FRISE], q[Q_FFALL])
     return f
 
 
