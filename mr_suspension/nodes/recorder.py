@@ -157,8 +157,8 @@ class RecorderNode(Node):
                 self.sim_ns = stamp
             if self.lockstep:
                 self._on_grid(stamp)
-        elif self.lockstep and self._step(self.counts[full]) is not None:
-            stamp = self.counts[full] * self._step(self.counts[full])  # sample n's time
+        elif self.lockstep and (step := self._step(self.counts[full])) is not None:
+            stamp = self.counts[full] * step  # the n-th message: sample n's time
         elif self.lockstep and self.sim_ns is not None:
             stamp = self.sim_ns
         else:
