@@ -139,6 +139,19 @@ def machine_reference(n=2_000_000):
     return (time.perf_counter() - t0) * 1e6 / n
 
 
+def _run_roles(script, roles, n):
+    """Run ``benchmarks/<script> <role> <n>`` once per role, together on a fresh domain.
+
+    Returns the JSON line each process prints last, in the order of ``roles`` (started in that
+    order: the one that starts the exchange last).
+    """
+    env = _env(random.randint(101, 200))
+    path = str(Path(__file__).with_name(script))
+    procs = [subprocess.Popen([sys.executable, path, role, str(n)], env=env,
+                              stdout=subprocess.PIPE, text=True) for role in roles]
+    return [json.loads(p.communicate(timeout=180)[0].strip().splitlines()[-1]) for p in procs]
+
+
 def middleware_reference(n=5000):
     """CPU per message [s] and wall time per round trip [s] of a two-process ping-pong.
 
@@ -147,11 +160,7 @@ def middleware_reference(n=5000):
     wake-ups are slow right now (which the Python loop reference does not show) from a slow
     node set.
     """
-    env = _env(random.randint(101, 200))
-    script = str(Path(__file__).with_name('pingpong.py'))
-    procs = [subprocess.Popen([sys.executable, script, role, str(n)], env=env,
-                              stdout=subprocess.PIPE, text=True) for role in ('b', 'a')]
-    rows = [json.loads(p.communicate(timeout=180)[0].strip().splitlines()[-1]) for p in procs]
+    rows = _run_roles('pingpong.py', ('b', 'a'), n)
     return (sum(r['cpu_per_message_s'] for r in rows) / len(rows),
             sum(r['round_trip_s'] for r in rows) / len(rows))
 
@@ -162,11 +171,7 @@ def ring_reference(n=10000):
     Three processes with the node set's topics, types, QoS and message pattern but no work:
     what any ``rclpy`` node set with this contract reaches on this machine right now.
     """
-    env = _env(random.randint(101, 200))
-    script = str(Path(__file__).with_name('ring.py'))
-    procs = [subprocess.Popen([sys.executable, script, role, str(n)], env=env,
-                              stdout=subprocess.PIPE, text=True) for role in ('a', 'c', 'p')]
-    rows = [json.loads(p.communicate(timeout=180)[0].strip().splitlines()[-1]) for p in procs]
+    rows = _run_roles('ring.py', ('a', 'c', 'p'), n)
     if not all(r['ok'] for r in rows):
         raise RuntimeError(f'ring reference failed: {rows}')
     plant = next(r for r in rows if r['role'] == 'p')

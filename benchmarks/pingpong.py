@@ -13,7 +13,6 @@ Run by ``bench_nodes.middleware_reference``; by hand:
 """
 
 import json
-import resource
 import sys
 import threading
 import time
@@ -21,11 +20,6 @@ import time
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from mr_suspension.nodes import cdr, common
-
-
-def _cpu():
-    ru = resource.getrusage(resource.RUSAGE_SELF)
-    return ru.ru_utime + ru.ru_stime
 
 
 def main(argv=None):
@@ -64,11 +58,11 @@ def main(argv=None):
     common.spin_until(executor, lambda: pub.get_subscription_count() >= 1
                       and sub.get_publisher_count() >= 1, 30.0)
     common.spin_until(executor, lambda: False, 0.5)  # both sides matched both ways
-    cpu0, wall0 = _cpu(), time.perf_counter()
+    cpu0, wall0 = common.cpu_time(), time.perf_counter()
     if role == 'a':
         pub.publish(tpl.pack(0, 0.0))
     ok = common.spin_until(executor, done.is_set, 120.0)
-    cpu, wall = _cpu() - cpu0, time.perf_counter() - wall0
+    cpu, wall = common.cpu_time() - cpu0, time.perf_counter() - wall0
     print(json.dumps({'role': role, 'ok': ok, 'messages': count[0],
                       'round_trip_s': wall / max(count[0], 1),
                       'cpu_per_message_s': cpu / max(count[0], 1)}), flush=True)

@@ -16,17 +16,11 @@ Prints one JSON line per process (the plant's has ``steps_per_s``).
 """
 
 import json
-import resource
 import sys
 import threading
 import time
 
 from mr_suspension.nodes import cdr, common, contract as c
-
-
-def _cpu():
-    ru = resource.getrusage(resource.RUSAGE_SELF)
-    return ru.ru_utime + ru.ru_stime
 
 
 class _Ring:
@@ -83,7 +77,7 @@ class _Ring:
 
     def start(self):
         """Start the clock (and, as the plant, publish sample 0)."""
-        self.t0 = (time.perf_counter(), _cpu())
+        self.t0 = (time.perf_counter(), common.cpu_time())
         if self.role == 'p':
             self._publish()
 
@@ -143,7 +137,7 @@ class _Ring:
 
     def figures(self):
         """Return the wall and CPU time since :meth:`start`, per step."""
-        wall, cpu = time.perf_counter() - self.t0[0], _cpu() - self.t0[1]
+        wall, cpu = time.perf_counter() - self.t0[0], common.cpu_time() - self.t0[1]
         steps = self.k if self.role == 'p' else self.count
         out = {'role': self.role, 'steps': steps, 'cpu_per_step_s': cpu / max(steps, 1)}
         if self.role == 'p':

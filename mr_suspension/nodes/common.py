@@ -227,6 +227,12 @@ def percentiles(values, ps=(50, 99)):
     return [float(v) for v in np.percentile(np.asarray(values, dtype=float), ps)]
 
 
+def cpu_time():
+    """Return the CPU time [s] (user + system) of this process so far, all threads."""
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
+
+
 class Stats:
     """Per-node run statistics written as JSON on shutdown (parameter ``stats_file``)."""
 
@@ -234,18 +240,13 @@ class Stats:
         self.path = path
         self.data = {}
         self.wall0 = time.monotonic()
-        self.cpu0 = self._cpu()
+        self.cpu0 = cpu_time()
         self.marked = False
-
-    @staticmethod
-    def _cpu():
-        ru = resource.getrusage(resource.RUSAGE_SELF)
-        return ru.ru_utime + ru.ru_stime
 
     def mark(self):
         """Start the CPU and wall clocks of the run here (after imports and set-up)."""
         self.wall0 = time.monotonic()
-        self.cpu0 = self._cpu()
+        self.cpu0 = cpu_time()
         self.data['start_unix'] = time.time()
         self.marked = True
 
@@ -253,7 +254,7 @@ class Stats:
         """Write the statistics plus CPU and wall time since :meth:`mark` (no-op w/o path)."""
         if not self.path:
             return
-        self.data['cpu_s'] = self._cpu() - self.cpu0
+        self.data['cpu_s'] = cpu_time() - self.cpu0
         self.data['wall_s'] = time.monotonic() - self.wall0
         self.data['cpu_fraction'] = self.data['cpu_s'] / max(self.data['wall_s'], 1e-9)
         Path(self.path).parent.mkdir(parents=True, exist_ok=True)
