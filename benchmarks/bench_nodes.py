@@ -179,7 +179,7 @@ def ring_reference(n=10000):
 
 
 def lockstep_rounds(out, args, hop):
-    """Alternate the bare ring and the node set (delay 1, no recorder); return the ratios."""
+    """Alternate the bare ring and the node set (delay 1, no recorder); return speeds, ratios."""
     speeds, ratios = [], []
     for i in range(args.repeats):
         ring, ring_cpu = ring_reference()
