@@ -1,13 +1,13 @@
 """Load parameter sets from the YAML files in ``config/`` (one file per vehicle, damper, ...).
 
 A name such as ``seed001_military`` is looked up as ``config/<kind>/<name>.yaml``; a path to a
-YAML (or JSON) file is read directly. The config directory is found in this order:
-``$MR_SUSPENSION_CONFIG``, the source tree (``<repo>/config``), then the ament share directory
-of an installed package.
+YAML (or JSON) file is read directly. The config directory is ``$MR_SUSPENSION_CONFIG`` if set,
+else ``config/`` of the package data (:func:`share_dir`).
 """
 
 import os
 from pathlib import Path
+import sys
 
 import yaml
 
@@ -19,20 +19,53 @@ from mr_suspension.core.quarter_car import QuarterCarParams
 KINDS = ('vehicles', 'dampers', 'drivers', 'controllers', 'scenarios')
 
 
+PACKAGE = 'mr_suspension'
+
+
+def share_candidates():
+    """Directories that may hold the package data (``config/``, ``msg_defs/``), in search order.
+
+    The source tree (``<repo>``, recognised by its ``package.xml``); the ament index when
+    ``ament_index_python`` is importable and ``AMENT_PREFIX_PATH`` is set (colcon install
+    space); ``<sys.prefix>/share/mr_suspension`` (where ``data_files`` go in a venv or wheel
+    install); the ``share/mr_suspension`` of the prefix this copy of the package is installed
+    under (``pip install --prefix``/``--user``).
+    """
+    here = Path(__file__).resolve()
+    out = []
+    if (here.parents[2] / 'package.xml').is_file():
+        out.append(here.parents[2])
+    if os.environ.get('AMENT_PREFIX_PATH'):
+        try:
+            from ament_index_python.packages import get_package_share_directory
+            out.append(Path(get_package_share_directory(PACKAGE)))
+        except Exception:  # noqa: B902 - not importable, or the package is not in the index
+            pass
+    out.append(Path(sys.prefix) / 'share' / PACKAGE)
+    # <prefix>/lib/pythonX.Y/site-packages/mr_suspension/core/config.py -> <prefix>
+    if len(here.parents) > 5:
+        out.append(here.parents[5] / 'share' / PACKAGE)
+    return out
+
+
+def share_dir(sub='config'):
+    """Return the first data directory holding ``sub`` (``'config'`` or ``'msg_defs'``)."""
+    tried = []
+    for base in share_candidates():
+        if (base / sub).is_dir():
+            return base / sub
+        tried.append(str(base / sub))
+    raise FileNotFoundError(f'cannot find the mr_suspension {sub} directory (tried '
+                            f'{", ".join(tried)}); reinstall the package or set '
+                            'MR_SUSPENSION_CONFIG')
+
+
 def config_dir():
     """Return the directory holding the packaged YAML parameter sets."""
     env = os.environ.get('MR_SUSPENSION_CONFIG')
     if env:
         return Path(env)
-    here = Path(__file__).resolve().parents[2] / 'config'
-    if here.is_dir():
-        return here
-    try:
-        from ament_index_python.packages import get_package_share_directory
-        return Path(get_package_share_directory('mr_suspension')) / 'config'
-    except Exception:  # noqa: B902 - ament index missing or package not installed
-        raise FileNotFoundError('cannot find the mr_suspension config directory; '
-                                'set MR_SUSPENSION_CONFIG') from None
+    return share_dir('config')
 
 
 def available(kind):
@@ -44,6 +77,11 @@ def available(kind):
 
 def load_yaml(kind, name_or_path):
     """Read the mapping of a named parameter set or a YAML file path."""
+    return _load(kind, name_or_path)[0]
+
+
+def _load(kind, name_or_path):
+    """Return ``(mapping, path)`` of a named parameter set or a YAML/JSON file path."""
     path = Path(str(name_or_path))
     if path.suffix not in ('.yaml', '.yml', '.json'):
         path = config_dir() / kind / f'{name_or_path}.yaml'
@@ -54,18 +92,32 @@ def load_yaml(kind, name_or_path):
     try:
         with open(path, encoding='utf-8') as fh:
             data = yaml.safe_load(fh)
-    except yaml.YAMLError as exc:
-        raise ValueError(f'{path}: not valid YAML ({exc})') from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ValueError(f'{path}: not valid YAML ({first}); fix the file') from None
+    except IsADirectoryError:
+        raise ValueError(f'{path}: is a directory; give a YAML file') from None
     if not isinstance(data, dict):
-        raise ValueError(f'{path}: expected a mapping of parameters')
+        raise ValueError(f'{path}: expected a mapping of parameters (key: value lines), got '
+                         f'{type(data).__name__}')
     data.pop('description', None)
     data.pop('source', None)
-    return data
+    return data, path
+
+
+def _build(kind, name, make):
+    """Load ``name`` of ``kind`` and build it with ``make(data, path)``; errors name the file."""
+    data, path = _load(kind, name)
+    try:
+        return make(data, path)
+    except (ValueError, TypeError) as exc:
+        msg = str(exc)
+        raise ValueError(msg if str(path) in msg else f'{path}: {msg}') from None
 
 
 def load_vehicle(name):
-    """Load quarter-car parameters from ``config/vehicles``."""
-    return QuarterCarParams.from_dict(load_yaml('vehicles', name))
+    """Load quarter-car parameters from ``config/vehicles`` (every parameter is required)."""
+    return _build('vehicles', name, lambda d, p: QuarterCarParams.from_dict(d, source=p))
 
 
 def load_damper(name):
@@ -74,10 +126,11 @@ def load_damper(name):
     A ``model.json`` written by ``mr-suspension diagnose`` also works: its fitted extended
     damper is used, so simulator and nodes run with the corrected damper.
     """
-    data = load_yaml('dampers', name)
-    if isinstance(data.get('damper'), dict):
-        data = data['damper']
-    return damper_from_dict(data)
+    def make(data, path):
+        if 'damper' in data:
+            data = data['damper']
+        return damper_from_dict(data, source=path)
+    return _build('dampers', name, make)
 
 
 def load_driver(name):
@@ -85,12 +138,21 @@ def load_driver(name):
 
     A ``diagnose`` ``model.json`` gives the Wonder Box with the fitted current dynamics.
     """
-    data = load_yaml('drivers', name)
-    if 'current_dynamics' in data:
-        return from_fitted_model(data)
-    return DriverParams.from_dict(data)
+    def make(data, path):
+        if 'current_dynamics' in data:
+            return from_fitted_model(data)
+        return DriverParams.from_dict(data, source=path)
+    return _build('drivers', name, make)
 
 
 def load_controller(name):
-    """Load a controller law and its gains from ``config/controllers``."""
-    return ControllerParams.from_dict(load_yaml('controllers', name))
+    """Load a controller law and its gains from ``config/controllers`` (key ``law`` required)."""
+    def make(data, path):
+        if 'law' not in data:
+            raise ValueError(f'{path}: missing required key law; add e.g. "law: skyhook"')
+        for key in ('lqr_gains', 'lqr_weights'):
+            if data.get(key) is not None and not isinstance(data[key], (list, tuple)):
+                raise ValueError(f'{path}: {key} must be a list of 4 numbers, got '
+                                 f'{data[key]!r}')
+        return ControllerParams.from_dict(data)
+    return _build('controllers', name, make)

@@ -17,7 +17,7 @@ import numpy as np
 
 from mr_suspension.core import extended
 from mr_suspension.core.fastmath import fast_tanh
-from mr_suspension.core.validation import check_finite, check_nonneg, check_positive, ParamsMixin
+from mr_suspension.core.validation import check_declared, check_positive, param, ParamsMixin
 
 LAW_LINEAR = 0
 LAW_BINGHAM = 1
@@ -28,22 +28,26 @@ LAW_BOUC_WEN = 5
 LAW_EXTENDED = 6
 
 MAXVEL_WINDOW_MAX = 4096
+# Plausibility bounds shared by the laws (generous for any road-vehicle or rig damper).
+F_MAX = 1.0e5  # [N] forces, yield forces, force per ampere
+C_MAX = 1.0e6  # [N s/m] viscous damping (and per ampere)
+K_MAX = 1.0e7  # [N/m] parallel stiffnesses
+V_Y_MIN, V_Y_MAX = 1.0e-6, 10.0  # [m/s] smoothing velocities
 
 
 @dataclass(frozen=True)
 class LinearDamperParams(ParamsMixin):
     """Linear viscous damper ``F = c v + F0`` (passive reference, seed 001 eq. 2)."""
 
-    c: float = 1000.0
-    f0: float = 0.0
+    c: float = param(1000.0, 0.0, C_MAX, 'N s/m', 'viscous damping')
+    f0: float = param(0.0, -F_MAX, F_MAX, 'N', 'static force')
 
     law = 'linear'
     law_id = LAW_LINEAR
     n_state = 0
 
     def __post_init__(self):
-        check_nonneg('LinearDamperParams', c=self.c)
-        check_finite('LinearDamperParams', f0=self.f0)
+        check_declared(self)
 
 
 @dataclass(frozen=True)
@@ -55,41 +59,37 @@ class BinghamParams(ParamsMixin):
     C0 = 50 N s/cm, F0 = -95 N.
     """
 
-    f0: float = -95.0
-    c0: float = 5000.0
-    c1: float = 0.0
-    fc0: float = 670.0
-    fc1: float = 0.0
-    v_y: float = 0.01
+    f0: float = param(-95.0, -F_MAX, F_MAX, 'N', 'static force')
+    c0: float = param(5000.0, 0.0, C_MAX, 'N s/m', 'damping at 0 A')
+    c1: float = param(0.0, 0.0, C_MAX, 'N s/(m A)', 'damping per ampere')
+    fc0: float = param(670.0, 0.0, F_MAX, 'N', 'yield force at 0 A')
+    fc1: float = param(0.0, 0.0, F_MAX, 'N/A', 'yield force per ampere')
+    v_y: float = param(0.01, V_Y_MIN, V_Y_MAX, 'm/s', 'yield smoothing velocity')
 
     law = 'bingham'
     law_id = LAW_BINGHAM
     n_state = 0
 
     def __post_init__(self):
-        check_finite('BinghamParams', f0=self.f0)
-        check_nonneg('BinghamParams', c0=self.c0, c1=self.c1, fc0=self.fc0, fc1=self.fc1)
-        check_positive('BinghamParams', v_y=self.v_y)
+        check_declared(self)
 
 
 @dataclass(frozen=True)
 class TanhParams(ParamsMixin):
     """Seed 002 current-driven model ``F = y_MR I tanh(c_MR v + k_MR x) + c_p v + k_p x``."""
 
-    y_mr: float = 900.0
-    c_mr: float = 30.0
-    k_mr: float = 20.0
-    c_p: float = 1200.0
-    k_p: float = 1500.0
+    y_mr: float = param(900.0, 0.0, F_MAX, 'N/A', 'MR force per ampere')
+    c_mr: float = param(30.0, 1.0e-3, 1.0e6, 's/m', 'tanh velocity scale')
+    k_mr: float = param(20.0, -1.0e6, 1.0e6, '1/m', 'tanh displacement scale')
+    c_p: float = param(1200.0, 0.0, C_MAX, 'N s/m', 'passive damping')
+    k_p: float = param(1500.0, -K_MAX, K_MAX, 'N/m', 'passive stiffness')
 
     law = 'tanh'
     law_id = LAW_TANH
     n_state = 0
 
     def __post_init__(self):
-        check_nonneg('TanhParams', y_mr=self.y_mr, c_p=self.c_p)
-        check_positive('TanhParams', c_mr=self.c_mr)
-        check_finite('TanhParams', k_mr=self.k_mr, k_p=self.k_p)
+        check_declared(self)
 
 
 @dataclass(frozen=True)
@@ -100,20 +100,18 @@ class TanhMaxVelParams(ParamsMixin):
     with the peak stroke rate over the last ``window`` seconds.
     """
 
-    c_mr: float = 900.0
-    eps: float = 0.02
-    c_p: float = 1200.0
-    k_p: float = 1500.0
-    window: float = 0.25
+    c_mr: float = param(900.0, 0.0, F_MAX, 'N/A', 'MR force per ampere')
+    eps: float = param(0.02, V_Y_MIN, V_Y_MAX, 'm/s', 'velocity regularisation')
+    c_p: float = param(1200.0, 0.0, C_MAX, 'N s/m', 'passive damping')
+    k_p: float = param(1500.0, -K_MAX, K_MAX, 'N/m', 'passive stiffness')
+    window: float = param(0.25, 1.0e-3, 10.0, 's', 'peak-velocity window')
 
     law = 'tanh_maxvel'
     law_id = LAW_TANH_MAXVEL
     n_state = MAXVEL_WINDOW_MAX + 3
 
     def __post_init__(self):
-        check_nonneg('TanhMaxVelParams', c_mr=self.c_mr, c_p=self.c_p)
-        check_positive('TanhMaxVelParams', eps=self.eps, window=self.window)
-        check_finite('TanhMaxVelParams', k_p=self.k_p)
+        check_declared(self)
 
 
 @dataclass(frozen=True)
@@ -127,24 +125,22 @@ class MechanicalParams(ParamsMixin):
     rod out (hence the minus sign in our tension-positive convention). k1 = 2.505e6 N/m.
     """
 
-    k1: float = 2.505e6
-    a2: float = 66736.0
-    a1: float = -165.0
-    a0: float = 162.0
-    c0: float = 800.0
-    c1: float = 2500.0
-    fy0: float = 60.0
-    fy1: float = 900.0
-    v_y: float = 0.02
+    k1: float = param(2.505e6, 1.0e3, 1.0e10, 'N/m', 'series stiffness')
+    a2: float = param(66736.0, -1.0e9, 1.0e9, 'N/m^2', 'accumulator quadratic term')
+    a1: float = param(-165.0, -K_MAX, K_MAX, 'N/m', 'accumulator linear term')
+    a0: float = param(162.0, -F_MAX, F_MAX, 'N', 'accumulator preload')
+    c0: float = param(800.0, 0.0, C_MAX, 'N s/m', 'damping at 0 A')
+    c1: float = param(2500.0, 0.0, C_MAX, 'N s/(m A)', 'damping per ampere')
+    fy0: float = param(60.0, 0.0, F_MAX, 'N', 'yield force at 0 A')
+    fy1: float = param(900.0, 0.0, F_MAX, 'N/A', 'yield force per ampere')
+    v_y: float = param(0.02, V_Y_MIN, V_Y_MAX, 'm/s', 'yield smoothing velocity')
 
     law = 'mechanical'
     law_id = LAW_MECHANICAL
     n_state = 1
 
     def __post_init__(self):
-        check_positive('MechanicalParams', k1=self.k1, v_y=self.v_y)
-        check_finite('MechanicalParams', a2=self.a2, a1=self.a1, a0=self.a0)
-        check_nonneg('MechanicalParams', c0=self.c0, c1=self.c1, fy0=self.fy0, fy1=self.fy1)
+        check_declared(self)
 
 
 @dataclass(frozen=True)
@@ -157,31 +153,26 @@ class BoucWenParams(ParamsMixin):
     the current. Defaults are Spencer's identified values (per volt, read here per ampere).
     """
 
-    alpha_a: float = 14000.0
-    alpha_b: float = 69500.0
-    c0_a: float = 2100.0
-    c0_b: float = 350.0
-    c1_a: float = 28300.0
-    c1_b: float = 295.0
-    k0: float = 4690.0
-    k1: float = 500.0
-    x0: float = 0.0
-    gamma: float = 3.63e6
-    beta: float = 3.63e6
-    a_bw: float = 301.0
-    n_substeps: float = 10.0
+    alpha_a: float = param(14000.0, 0.0, 1.0e8, 'N/m', 'Bouc-Wen stiffness at 0 A')
+    alpha_b: float = param(69500.0, 0.0, 1.0e8, 'N/(m A)', 'Bouc-Wen stiffness per ampere')
+    c0_a: float = param(2100.0, 1.0, C_MAX, 'N s/m', 'c0 at 0 A')
+    c0_b: float = param(350.0, 0.0, C_MAX, 'N s/(m A)', 'c0 per ampere')
+    c1_a: float = param(28300.0, 1.0, C_MAX, 'N s/m', 'c1 at 0 A')
+    c1_b: float = param(295.0, 0.0, C_MAX, 'N s/(m A)', 'c1 per ampere')
+    k0: float = param(4690.0, 0.0, K_MAX, 'N/m', 'stiffness k0')
+    k1: float = param(500.0, 0.0, K_MAX, 'N/m', 'accumulator stiffness k1')
+    x0: float = param(0.0, -1.0, 1.0, 'm', 'accumulator initial displacement')
+    gamma: float = param(3.63e6, 0.0, 1.0e10, '1/m^2', 'Bouc-Wen gamma')
+    beta: float = param(3.63e6, 0.0, 1.0e10, '1/m^2', 'Bouc-Wen beta')
+    a_bw: float = param(301.0, 1.0e-3, 1.0e6, '', 'Bouc-Wen A')
+    n_substeps: float = param(10.0, 1.0, 1000.0, '', 'integration substeps per step')
 
     law = 'bouc_wen'
     law_id = LAW_BOUC_WEN
     n_state = 2
 
     def __post_init__(self):
-        check_nonneg('BoucWenParams', alpha_a=self.alpha_a, alpha_b=self.alpha_b,
-                     c0_b=self.c0_b, c1_b=self.c1_b, k0=self.k0, k1=self.k1,
-                     gamma=self.gamma, beta=self.beta)
-        check_positive('BoucWenParams', c0_a=self.c0_a, c1_a=self.c1_a, a_bw=self.a_bw,
-                       n_substeps=self.n_substeps)
-        check_finite('BoucWenParams', x0=self.x0)
+        check_declared(self)
 
 
 LAWS = {
@@ -194,15 +185,24 @@ LAWS = {
 }
 
 
-def damper_from_dict(data):
-    """Build damper parameters from ``{'law': name, ...parameters}`` (YAML/JSON)."""
+def damper_from_dict(data, source=None):
+    """Build damper parameters from ``{'law': name, ...parameters}`` (YAML/JSON).
+
+    ``source``: the file the mapping came from; then every parameter of the law is required.
+    """
+    if not isinstance(data, dict):
+        raise ValueError(f'{source or "damper"}: expected a mapping with a "law" key, got '
+                         f'{type(data).__name__}')
     data = dict(data)
     law = data.pop('law', None)
+    known = sorted(LAWS) + ['extended']
+    if law is None:
+        raise ValueError(f'{source or "damper"}: missing required key law; add one of {known}')
     if law == 'extended':
-        return extended.ExtendedDamperParams.from_dict(data)
-    if law not in LAWS:
-        raise ValueError(f'unknown damper law {law!r}; known: {sorted(LAWS) + ["extended"]}')
-    return LAWS[law].from_dict(data)
+        return extended.ExtendedDamperParams.from_dict(data, source=source)
+    if not isinstance(law, str) or law not in LAWS:
+        raise ValueError(f'unknown damper law {law!r}; known: {known}')
+    return LAWS[law].from_dict(data, source=source)
 
 
 def law_id_of(params):

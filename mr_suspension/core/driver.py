@@ -12,9 +12,11 @@ import math
 from numba import njit
 import numpy as np
 
-from mr_suspension.core.validation import check_nonneg, check_positive, ParamsMixin
+from mr_suspension.core.validation import check_declared, check_range, param, ParamsMixin
 
 DEAD_TIME_BUFFER = 512
+DEAD_TIME_MAX = 0.25  # [s]; a fitted or configured dead time beyond it is an input error
+LAG_MAX = 1.0  # [s]; largest plausible driver or fluid time constant
 # Driver state layout: [lag output, fluid output, ring head, ring buffer (DEAD_TIME_BUFFER)].
 DRV_LAG, DRV_FLUID, DRV_HEAD, DRV_BUF = 0, 1, 2, 3
 DRIVER_STATE_SIZE = DRV_BUF + DEAD_TIME_BUFFER
@@ -31,27 +33,22 @@ class DriverParams(ParamsMixin):
     about 25 ms falling in total). A time constant of 0 means no lag.
     """
 
-    v_dead: float = 0.5
-    gain: float = 0.5
-    i_max: float = 2.0
-    knee: float = 6.0
-    v_max: float = 5.0
-    tau_rise: float = 0.007
-    tau_fall: float = 0.004
-    dead_time: float = 0.003
-    fluid_tau_rise: float = 0.0
-    fluid_tau_fall: float = 0.016
+    v_dead: float = param(0.5, 0.0, 50.0, 'V', 'driver dead zone')
+    gain: float = param(0.5, 1.0e-3, 100.0, 'A/V', 'driver gain')
+    i_max: float = param(2.0, 1.0e-3, 50.0, 'A', 'saturation current')
+    knee: float = param(6.0, 0.5, 100.0, '', 'saturation knee exponent')
+    v_max: float = param(5.0, 0.01, 100.0, 'V', 'largest driver input voltage')
+    tau_rise: float = param(0.007, 0.0, LAG_MAX, 's', 'driver rise time constant')
+    tau_fall: float = param(0.004, 0.0, LAG_MAX, 's', 'driver fall time constant')
+    dead_time: float = param(0.003, 0.0, DEAD_TIME_MAX, 's', 'driver dead time')
+    fluid_tau_rise: float = param(0.0, 0.0, LAG_MAX, 's', 'fluid rise time constant')
+    fluid_tau_fall: float = param(0.016, 0.0, LAG_MAX, 's', 'fluid fall time constant')
 
     def __post_init__(self):
-        check_nonneg('DriverParams', v_dead=self.v_dead, tau_rise=self.tau_rise,
-                     tau_fall=self.tau_fall, dead_time=self.dead_time,
-                     fluid_tau_rise=self.fluid_tau_rise, fluid_tau_fall=self.fluid_tau_fall)
-        check_positive('DriverParams', gain=self.gain, i_max=self.i_max, knee=self.knee,
-                       v_max=self.v_max)
+        check_declared(self)
         if self.v_max <= self.v_dead:
-            raise ValueError('DriverParams: v_max must exceed v_dead')
-        if self.dead_time > 0.25:
-            raise ValueError('DriverParams: dead_time must be <= 0.25 s')
+            raise ValueError(f'DriverParams: v_max ({self.v_max:g} V) must exceed v_dead '
+                             f'({self.v_dead:g} V); raise v_max or lower v_dead')
 
     @property
     def i_range(self):
@@ -242,13 +239,11 @@ def fitted_dynamics(block, name='current_dynamics'):
         raise ValueError(f'fitted model {name}: expected a mapping')
     out = {}
     for k in ('dead_time', 'tau_rise', 'tau_fall'):
-        try:
-            val = float(block[k])
-        except (KeyError, TypeError, ValueError):
-            raise ValueError(f'fitted model {name}: missing or non-numeric {k}') from None
-        if not (math.isfinite(val) and val >= 0.0):
-            raise ValueError(f'fitted model {name}: {k} must be finite and >= 0, got {val}')
-        out[k] = val
+        if k not in block:
+            raise ValueError(f'fitted model {name}: missing key {k}; add it (seconds)')
+        hi = DEAD_TIME_MAX if k == 'dead_time' else LAG_MAX
+        out[k] = check_range(f'fitted model {name}', k, block[k], 0.0, hi, 's',
+                             'current dead time' if k == 'dead_time' else 'current lag')
     return out
 
 
@@ -265,11 +260,12 @@ def from_fitted_model(model, base=None):
     dyn = fitted_dynamics(model['current_dynamics'])
     base = base or DriverParams()
     drv = model.get('driver')
-    if model.get('input', {}).get('signal') == 'current' and drv:
+    inp = model.get('input')
+    if isinstance(inp, dict) and inp.get('signal') == 'current' and drv:
         drv = fitted_dynamics(drv, 'driver')
         return replace(base, tau_rise=drv['tau_rise'], tau_fall=drv['tau_fall'],
-                       dead_time=min(drv['dead_time'] + dyn['dead_time'], 0.25),
+                       dead_time=min(drv['dead_time'] + dyn['dead_time'], DEAD_TIME_MAX),
                        fluid_tau_rise=dyn['tau_rise'], fluid_tau_fall=dyn['tau_fall'])
     return replace(base, tau_rise=dyn['tau_rise'], tau_fall=dyn['tau_fall'],
-                   dead_time=min(dyn['dead_time'], 0.25), fluid_tau_rise=0.0,
+                   dead_time=dyn['dead_time'], fluid_tau_rise=0.0,
                    fluid_tau_fall=0.0)

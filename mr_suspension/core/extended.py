@@ -29,7 +29,7 @@ from numba import njit
 import numpy as np
 
 from mr_suspension.core.fastmath import fast_tanh
-from mr_suspension.core.validation import build, check_finite, check_nonneg, check_positive
+from mr_suspension.core.validation import as_number, build, check_declared, param
 
 EXT_NSTATE = 7
 S_Z, S_FD, S_E, S_U, S_Y, S_M, S_G = range(7)
@@ -50,31 +50,27 @@ class ExtendedDamperParams:
     asymmetry, ``|rho| <= 0.5``.
     """
 
-    f0: float = 0.0
-    c0: float = 1000.0
-    c1: float = 0.0
-    fy0: float = 100.0
-    fy1: float = 500.0
-    v_y: float = 0.01
-    i_sat: float = 0.0
-    x_h: float = 0.0
-    k_series: float = 0.0
-    k_gas1: float = 0.0
-    k_gas2: float = 0.0
-    kappa: float = 0.0
-    tau_thermal: float = 600.0
-    rho: float = 0.0
+    # Very wide ranges: the diagnosis fit must be able to represent any real damper; they only
+    # reject values no damper has (e.g. k_series = 1e-300 N/m, a 1e9 N yield force).
+    f0: float = param(0.0, -1.0e7, 1.0e7, 'N', 'static force')
+    c0: float = param(1000.0, -1.0e8, 1.0e8, 'N s/m', 'damping at 0 A')
+    c1: float = param(0.0, -1.0e8, 1.0e8, 'N s/(m A)', 'damping per ampere')
+    fy0: float = param(100.0, -1.0e7, 1.0e7, 'N', 'yield force at 0 A')
+    fy1: float = param(500.0, -1.0e7, 1.0e7, 'N/A', 'yield force per ampere')
+    v_y: float = param(0.01, 1.0e-7, 100.0, 'm/s', 'yield smoothing velocity')
+    i_sat: float = param(0.0, 1.0e-4, 1.0e3, 'A', 'yield saturation current', off=0.0)
+    x_h: float = param(0.0, 1.0e-7, 1.0, 'm', 'Dahl pre-yield length', off=0.0)
+    k_series: float = param(0.0, 1.0, 1.0e12, 'N/m', 'series stiffness', off=0.0)
+    k_gas1: float = param(0.0, -1.0e9, 1.0e9, 'N/m', 'gas spring linear term')
+    k_gas2: float = param(0.0, -1.0e12, 1.0e12, 'N/m^2', 'gas spring quadratic term')
+    kappa: float = param(0.0, 0.0, 1.0e6, '1/J', 'thermal fade per stored heat')
+    tau_thermal: float = param(600.0, 1.0e-3, 1.0e8, 's', 'cooling time constant')
+    rho: float = param(0.0, -RHO_MAX, RHO_MAX, '', 'rebound/compression asymmetry')
 
     law = 'extended'
 
     def __post_init__(self):
-        check_finite('ExtendedDamperParams', f0=self.f0, c0=self.c0, c1=self.c1, fy0=self.fy0,
-                     fy1=self.fy1, k_gas1=self.k_gas1, k_gas2=self.k_gas2, rho=self.rho)
-        check_positive('ExtendedDamperParams', v_y=self.v_y, tau_thermal=self.tau_thermal)
-        check_nonneg('ExtendedDamperParams', i_sat=self.i_sat, x_h=self.x_h,
-                     k_series=self.k_series, kappa=self.kappa)
-        if abs(self.rho) > RHO_MAX:
-            raise ValueError(f'ExtendedDamperParams: |rho| must be <= {RHO_MAX}, got {self.rho}')
+        check_declared(self)
 
     def to_array(self):
         """Return the float64 parameter array ``p`` of ``extended_force``."""
@@ -85,10 +81,16 @@ class ExtendedDamperParams:
         return {k: float(v) for k, v in asdict(self).items()}
 
     @classmethod
-    def from_dict(cls, data):
-        """Build from a mapping (a ``law`` key is ignored); unknown keys raise ValueError."""
-        data = {k: float(v) for k, v in dict(data).items() if k != 'law'}
-        return build(cls, data)
+    def from_dict(cls, data, source=None):
+        """Build from a mapping (a ``law`` key is ignored); unknown keys raise ValueError.
+
+        ``source``: the file the mapping came from; then every parameter is required.
+        """
+        if not isinstance(data, dict):
+            raise ValueError(f'{source or cls.__name__}: expected a mapping of parameters, got '
+                             f'{type(data).__name__}')
+        data = {k: as_number(cls.__name__, k, v) for k, v in data.items() if k != 'law'}
+        return build(cls, data, source=source)
 
     @classmethod
     def from_array(cls, p):

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from numba import njit
 import numpy as np
 
-from mr_suspension.core.validation import check_finite, check_nonneg, check_positive, ParamsMixin
+from mr_suspension.core.validation import check_declared, param, ParamsMixin
 
 # Parameter array layout (QuarterCarParams.to_array + the damper static force).
 CAR_MS, CAR_MU, CAR_KS, CAR_KT, CAR_CT, CAR_XMAX, CAR_XMIN, CAR_KSTOP, CAR_G, CAR_FD0 = range(10)
@@ -28,23 +28,18 @@ ZS, ZU, VS, VU = range(4)
 class QuarterCarParams(ParamsMixin):
     """Quarter-car parameters (SI). ``stroke_max``/``stroke_min``: rebound/bump stop positions."""
 
-    m_s: float = 241.5
-    m_u: float = 41.5
-    k_s: float = 6000.0
-    k_t: float = 14000.0
-    c_t: float = 1500.0
-    stroke_max: float = 0.10
-    stroke_min: float = -0.10
-    k_stop: float = 2.0e5
-    g: float = 9.81
+    m_s: float = param(241.5, 20.0, 5000.0, 'kg', 'sprung mass per corner')
+    m_u: float = param(41.5, 2.0, 1000.0, 'kg', 'unsprung mass per corner')
+    k_s: float = param(6000.0, 500.0, 2.0e6, 'N/m', 'suspension spring stiffness')
+    k_t: float = param(14000.0, 5.0e3, 1.0e8, 'N/m', 'tyre stiffness')
+    c_t: float = param(1500.0, 0.0, 1.0e5, 'N s/m', 'tyre damping')
+    stroke_max: float = param(0.10, 1.0e-3, 1.0, 'm', 'rebound stop position')
+    stroke_min: float = param(-0.10, -1.0, -1.0e-3, 'm', 'bump stop position, negative')
+    k_stop: float = param(2.0e5, 0.0, 1.0e9, 'N/m', 'end-stop stiffness')
+    g: float = param(9.81, 0.1, 100.0, 'm/s^2', 'gravitational acceleration')
 
     def __post_init__(self):
-        check_positive('QuarterCarParams', m_s=self.m_s, m_u=self.m_u, k_s=self.k_s,
-                       k_t=self.k_t, stroke_max=self.stroke_max, g=self.g)
-        check_nonneg('QuarterCarParams', c_t=self.c_t, k_stop=self.k_stop)
-        check_finite('QuarterCarParams', stroke_min=self.stroke_min)
-        if self.stroke_min >= 0.0:
-            raise ValueError('QuarterCarParams: stroke_min (bump stop) must be < 0')
+        check_declared(self)
 
     def to_array(self, f_d0=0.0):
         """Return the jitted plant's parameter array; ``f_d0`` is the damper's static force."""

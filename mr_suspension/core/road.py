@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from mr_suspension.core.validation import check_nonneg, check_positive
+from mr_suspension.core.validation import check_range
 
 # ISO 8608:2016 Table 2: geometric mean of the displacement PSD Gd(n0) at n0 = 0.1 cycle/m,
 # classes A..H, in m^3 (16e-6 m^3 for class A, x4 per class).
@@ -42,8 +42,16 @@ class Road:
         return self.n_steps * self.dt
 
 
+# Plausible road inputs (SI): any real road, rig or test track fits inside.
+HEIGHT_MAX = 0.5  # [m] step/bump height, harmonic/sweep amplitude
+SPEED_MAX = 100.0  # [m/s]
+DURATION_MAX = 3600.0  # [s] one simulated hour
+FREQ_MAX = 500.0  # [Hz]
+
+
 def _grid(duration, dt):
-    check_positive('road', duration=duration, dt=dt)
+    check_range('road', 'duration', duration, 1.0e-6, DURATION_MAX, 's', 'simulated time')
+    check_range('road', 'dt', dt, 1.0e-6, 0.1, 's', 'time step')
     n = int(round(duration / dt))
     if n < 2:
         raise ValueError('road: duration must cover at least two steps')
@@ -53,8 +61,9 @@ def _grid(duration, dt):
 def step(height=0.05, t0=0.5, rise=0.01, duration=10.0, dt=1e-3):
     """Step of ``height`` at ``t0`` smoothed by a half-cosine over ``rise`` (tyre envelope)."""
     t = _grid(duration, dt)
-    check_nonneg('step', t0=t0)
-    check_positive('step', rise=rise)
+    check_range('step', 'height', height, -HEIGHT_MAX, HEIGHT_MAX, 'm', 'step height')
+    check_range('step', 't0', t0, 0.0, DURATION_MAX, 's', 'start time')
+    check_range('step', 'rise', rise, 1.0e-4, 100.0, 's', 'rise time')
     u = np.clip((t - t0) / rise, 0.0, 1.0)
     z = height * 0.5 * (1.0 - np.cos(np.pi * u))
     inside = (u > 0.0) & (u < 1.0)
@@ -64,7 +73,10 @@ def step(height=0.05, t0=0.5, rise=0.01, duration=10.0, dt=1e-3):
 
 def bump(height=0.05, length=2.0, speed=10.0, t0=0.5, duration=10.0, dt=1e-3):
     """Single ``(1 - cos)`` bump of ``height`` and ``length`` crossed at ``speed`` (seed 003)."""
-    check_positive('bump', length=length, speed=speed)
+    check_range('bump', 'height', height, -HEIGHT_MAX, HEIGHT_MAX, 'm', 'bump height')
+    check_range('bump', 'length', length, 0.01, 1000.0, 'm', 'bump length')
+    check_range('bump', 'speed', speed, 0.01, SPEED_MAX, 'm/s', 'vehicle speed')
+    check_range('bump', 't0', t0, 0.0, DURATION_MAX, 's', 'start time')
     t = _grid(duration, dt)
     tb = length / speed
     u = np.clip((t - t0) / tb, 0.0, 1.0)
@@ -76,7 +88,8 @@ def bump(height=0.05, length=2.0, speed=10.0, t0=0.5, duration=10.0, dt=1e-3):
 
 def harmonic(amplitude=0.01, freq=1.0, duration=10.0, dt=1e-3):
     """Harmonic excitation ``z = A sin(2 pi f t)`` (seed 001 rig and frequency responses)."""
-    check_positive('harmonic', amplitude=amplitude, freq=freq)
+    check_range('harmonic', 'amplitude', amplitude, 0.0, HEIGHT_MAX, 'm', 'road amplitude')
+    check_range('harmonic', 'freq', freq, 1.0e-3, FREQ_MAX, 'Hz', 'frequency')
     t = _grid(duration, dt)
     w = 2.0 * np.pi * freq
     return Road(f'harmonic_{freq:g}Hz', dt, amplitude * np.sin(w * t),
@@ -85,7 +98,12 @@ def harmonic(amplitude=0.01, freq=1.0, duration=10.0, dt=1e-3):
 
 def sweep(amplitude=0.005, f_start=0.5, f_end=20.0, duration=60.0, dt=1e-3):
     """Exponential sine sweep from ``f_start`` to ``f_end`` with constant amplitude."""
-    check_positive('sweep', amplitude=amplitude, f_start=f_start, f_end=f_end)
+    check_range('sweep', 'amplitude', amplitude, 0.0, HEIGHT_MAX, 'm', 'road amplitude')
+    check_range('sweep', 'f_start', f_start, 1.0e-3, FREQ_MAX, 'Hz', 'start frequency')
+    check_range('sweep', 'f_end', f_end, 1.0e-3, FREQ_MAX, 'Hz', 'end frequency')
+    if f_start == f_end:
+        raise ValueError('sweep: f_start and f_end must differ; use --road harmonic for one '
+                         'frequency')
     t = _grid(duration, dt)
     k = math.log(f_end / f_start) / t[-1]
     phase = 2.0 * np.pi * f_start * (np.exp(k * t) - 1.0) / k
@@ -110,7 +128,14 @@ def iso8608(road_class='C', speed=20.0, duration=60.0, dt=1e-3, seed=0, n_min=0.
     with ``A_k = sqrt(2 G(f_k) df)`` and the time-frequency PSD ``G(f) = Gd(f / V) / V``, band
     limited to ``n_min..n_max`` cycle/m (and the Nyquist frequency). ``zdot`` is exact.
     """
-    check_positive('iso8608', speed=speed, n_min=n_min, n_max=n_max)
+    check_range('iso8608', 'speed', speed, 0.01, SPEED_MAX, 'm/s', 'vehicle speed')
+    check_range('iso8608', 'n_min', n_min, 1.0e-4, 100.0, 'cycle/m', 'lowest wavenumber')
+    check_range('iso8608', 'n_max', n_max, 1.0e-4, 100.0, 'cycle/m', 'highest wavenumber')
+    check_range('iso8608', 'waviness', waviness, 0.0, 5.0, '', 'PSD slope')
+    if n_min >= n_max:
+        raise ValueError(f'iso8608: n_min ({n_min:g}) must be below n_max ({n_max:g})')
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f'iso8608: seed must be an integer >= 0, got {seed!r}')
     t = _grid(duration, dt)
     n_samples = t.size
     freqs = np.fft.rfftfreq(n_samples, dt)
@@ -132,11 +157,13 @@ def iso8608(road_class='C', speed=20.0, duration=60.0, dt=1e-3, seed=0, n_min=0.
 
 def from_spec(spec, duration=None, dt=1e-3):
     """Build a road from a mapping such as ``{'type': 'iso8608', 'road_class': 'C', ...}``."""
+    if not isinstance(spec, dict):
+        raise ValueError(f'road: expected a mapping such as {{type: step}}, got {spec!r}')
     spec = dict(spec)
     kind = spec.pop('type', None)
     makers = {'step': step, 'bump': bump, 'harmonic': harmonic, 'sweep': sweep,
               'iso8608': iso8608}
-    if kind not in makers:
+    if not isinstance(kind, str) or kind not in makers:
         raise ValueError(f'road type must be one of {sorted(makers)}, got {kind!r}')
     if duration is not None:
         spec['duration'] = duration

@@ -25,7 +25,7 @@ from mr_suspension.core.driver import DRIVER_STATE_SIZE, driver_step, DriverPara
 from mr_suspension.core.metrics import rms, sos_step, wk_sos
 from mr_suspension.core.quarter_car import CAR_G, CAR_MS, CAR_MU, plant_step, QuarterCarParams
 from mr_suspension.core.quarter_car import VS, VU, ZS, ZU
-from mr_suspension.core.validation import check_nonneg, check_positive
+from mr_suspension.core.validation import check_range
 
 # Recorded channels of a single-corner run.
 CHANNELS = ('z_s', 'z_u', 'v_s', 'v_u', 'a_s', 'a_u', 'stroke', 'stroke_rate', 'f_d', 'f_t',
@@ -51,12 +51,18 @@ class CornerConfig:
     control_delay: float = 0.0
 
     def __post_init__(self):
-        check_positive('CornerConfig', dt=self.dt)
-        check_nonneg('CornerConfig', control_delay=self.control_delay)
-        if self.dt > 0.01:
-            raise ValueError('CornerConfig: dt must be <= 0.01 s for a stable, accurate step')
+        check_range('CornerConfig', 'dt', self.dt, 1.0e-6, 0.01, 's',
+                    'time step; > 0.01 s is neither stable nor accurate')
+        check_range('CornerConfig', 'control_delay', self.control_delay, 0.0, 0.25, 's',
+                    'sensor and compute delay')
         if self.control_delay / self.dt > DELAY_BUFFER - 1:
-            raise ValueError(f'CornerConfig: control_delay must be < {DELAY_BUFFER} steps')
+            raise ValueError(f'CornerConfig: control_delay must be < {DELAY_BUFFER} steps '
+                             f'({(DELAY_BUFFER - 1) * self.dt:g} s at dt = {self.dt:g} s); '
+                             'shorten it or use a larger --dt')
+        for name, cls in (('car', QuarterCarParams), ('driver', DriverParams),
+                          ('controller', ControllerParams)):
+            if not isinstance(getattr(self, name), cls):
+                raise ValueError(f'CornerConfig: {name} must be a {cls.__name__}')
         dmp.law_id_of(self.damper)
 
     def replace(self, **changes):

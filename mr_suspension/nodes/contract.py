@@ -90,11 +90,8 @@ def yaml_path():
     env = os.environ.get('MR_SUSPENSION_MSG_DEFS')
     if env:
         return Path(env) / 'topics.yaml'
-    here = Path(__file__).resolve().parents[2] / 'msg_defs' / 'topics.yaml'
-    if here.is_file():
-        return here
-    from ament_index_python.packages import get_package_share_directory
-    return Path(get_package_share_directory('mr_suspension')) / 'msg_defs' / 'topics.yaml'
+    from mr_suspension.core.config import share_dir  # source tree, ament index, <prefix>/share
+    return share_dir('msg_defs') / 'topics.yaml'
 
 
 def load_yaml(path=None):
