@@ -15,7 +15,7 @@ from mr_suspension.core.simulator import CornerConfig, simulate
 
 # Subcommands contributed by the other parts of the package (each has register(subparsers)).
 PLUGINS = ('mr_suspension.identification.cli', 'mr_suspension.evaluation.cli',
-           'mr_suspension.nodes.cli')
+           'mr_suspension.nodes.cli', 'mr_suspension.bagtools')
 
 METRIC_LABELS = {
     'body_acc_rms': ('body acc. RMS', 'm/s²'),

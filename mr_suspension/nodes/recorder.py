@@ -1,7 +1,12 @@
 """Recorder node: writes the contract topics to a rosbag2 bag (MCAP by default, or sqlite3).
 
-Uses ``rosbags`` (no rosbag2 install needed); the bag is a standard rosbag2 directory
-(``metadata.yaml`` plus the storage file) that ``ros2 bag``, ``rosbags`` and ``mcap`` read.
+Writes with :class:`mr_suspension.bagtools.BagWriter` (the ``mcap`` package or sqlite3; no
+rosbag2 install needed); the bag is a standard rosbag2 directory (``metadata.yaml`` plus the
+storage file) that ``ros2 bag``, ``rosbags`` and ``mcap`` read. It survives a crash: every
+``flush_period`` (of wall or log time) the MCAP chunk in progress is closed and the file flushed
+and fsynced (sqlite3: a commit), and ``metadata.yaml`` is rewritten atomically every
+``metadata_period``, so a killed recorder loses at most the last ``flush_period`` of data;
+``mr-suspension bag repair`` makes such a bag readable again.
 Messages are taken serialized (raw CDR) and written as they are, time-stamped at reception like
 ``ros2 bag record``: with the middleware's reception time (system clock) in real time; with
 simulated time in lock-step (``lockstep: true``, as ``ros2 bag record --use-sim-time``): the
@@ -19,8 +24,10 @@ not wake for every message either: its subscriptions sit on an internal node (``
 not spun by any executor) whose middleware queues (depth 1000, one second at 1 kHz) fill
 between polls; every ``poll_period`` the node takes all queued messages and writes them in
 order of reception. At 1 kHz on seven topics that is about 200 wake-ups a second instead of
-7000, which leaves the CPU to the control loop. On SIGINT/SIGTERM it keeps polling until the
-queues are drained, then closes the bag (metadata written), so no received message is lost.
+7000, which leaves the CPU to the control loop. On SIGINT/SIGTERM it keeps polling until no
+message arrived for ``drain_idle`` or for at most ``drain_max`` (0.5 s, publishers that keep
+going cannot hold it open), then takes what is still queued and closes the bag (summary and
+metadata written), so no message received before the signal is lost.
 """
 
 from datetime import datetime
@@ -32,14 +39,14 @@ import threading
 import time
 
 from rclpy.node import Node
-from rosbags.rosbag2 import StoragePlugin, Writer
 
+from mr_suspension.bagtools import BagWriter, SUFFIX
 from mr_suspension.nodes import cdr, common, contract as c
 
 NODE = 'recorder'
 # Lock-step stamps are k dt; a step below 1 us means wall-clock stamps (a plant in real time).
 MIN_STEP_NS = 1000
-STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+STORAGES = tuple(SUFFIX)
 
 
 def message_class(msgtype):
@@ -64,6 +71,16 @@ class RecorderNode(Node):
                                        'lock-step nodes publish (no message lost to discovery)')
         self.drain_idle = common.declare(self, d, 'drain_idle', 'On shutdown, stop once no '
                                          'message arrived for this long [s]', 0.01, 10.0)
+        self.drain_max = common.declare(self, d, 'drain_max', 'On shutdown, close the bag '
+                                        'after at most this long even if messages keep '
+                                        'coming [s]', 0.0, 10.0)
+        flush_period = common.declare(self, d, 'flush_period', 'Make the bag durable this '
+                                      'often, in wall or log time [s] (at most this much data '
+                                      'is lost if the process is killed)', 0.01, 10.0)
+        metadata_period = common.declare(self, d, 'metadata_period', 'Rewrite metadata.yaml '
+                                         'this often [s]', 0.1, 3600.0)
+        fsync = common.declare(self, d, 'fsync', 'fsync the bag at every flush (survives a '
+                               'power loss too, not only a killed process)')
         poll_period = common.declare(self, d, 'poll_period', 'Take the queued messages this '
                                      'often [s] (queues hold 1 s at 1 kHz)', 0.0005, 0.5)
         niceness = common.declare(self, d, 'niceness', 'Run at this nice value (0 = as '
@@ -71,7 +88,7 @@ class RecorderNode(Node):
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
                                                  'as JSON here on exit ("" = off)'))
         if storage not in STORAGES:
-            raise ValueError(f'recorder: storage must be one of {sorted(STORAGES)}, '
+            raise ValueError(f'recorder: storage must be one of {list(STORAGES)}, '
                              f'got {storage!r}')
         names = [t.strip() for t in topics.split(',') if t.strip()] or list(c.TOPICS)
         unknown = sorted(set(names) - set(c.TOPICS))
@@ -85,8 +102,7 @@ class RecorderNode(Node):
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.finished = threading.Event()
         self.lock = threading.Lock()
-        self.writer = Writer(self.path, version=9, storage_plugin=STORAGES[storage])
-        self.writer.open()
+        self.writer = BagWriter(self.path, storage, flush_period, metadata_period, fsync)
         self.closed = False
         store = cdr.typestore()
         self.counts = {}
@@ -104,7 +120,8 @@ class RecorderNode(Node):
         for name in names:
             t = c.TOPICS[name]
             full = self.resolve_topic_name(name)
-            conn = self.writer.add_connection(full, t.type, typestore=store)
+            msgdef, _ = store.generate_msgdef(t.type, ros_version=2)
+            conn = self.writer.add_connection(full, t.type, msgdef, store.hash_rihs01(t.type))
             self.counts[full] = 0
             sub = self.taps.create_subscription(message_class(t.type), name, _never,
                                                 common.qos(name, self.lockstep), raw=True)
@@ -133,17 +150,17 @@ class RecorderNode(Node):
                     break
                 key = max(key, got[1]['received_timestamp'])
                 batch.append((key, len(batch), got[0], source))
-        if not batch:
-            return 0
         batch.sort()
         with self.lock:
             if self.closed:
                 return 0
             for received, _, raw, (_, conn, full, timed, last) in batch:
                 self._write(received, raw, conn, full, timed, last)
-            if not self.stats.marked:
-                self.stats.mark()
-            self.last_arrival = time.monotonic()
+            if batch:
+                if not self.stats.marked:
+                    self.stats.mark()
+                self.last_arrival = time.monotonic()
+            self.writer.maybe_flush()  # chunk closed, file flushed: a crash loses no more
         return len(batch)
 
     def _write(self, received, raw, conn, full, timed, last):
@@ -188,16 +205,19 @@ class RecorderNode(Node):
         return None
 
     def drain(self, executor):
-        """Keep receiving until no message arrived for ``drain_idle`` seconds (at most 10 s)."""
-        end = time.monotonic() + 10.0
+        """Keep receiving until no message arrived for ``drain_idle`` s, at most ``drain_max``."""
+        end = time.monotonic() + self.drain_max
         common.spin_until(executor, lambda: time.monotonic() - self.last_arrival > self.drain_idle
-                          or time.monotonic() > end, 11.0, step=0.02)
+                          or time.monotonic() > end, self.drain_max + 0.1, step=0.02)
 
     def close(self):
-        """Take what is still queued, close the bag (writes metadata) and the statistics file."""
-        end = time.monotonic() + 1.0
-        while not self.closed and self._poll() and time.monotonic() < end:
-            pass  # bounded: publishers that keep going must not hold the bag open
+        """Take what is still queued, close the bag (summary, metadata) and the statistics file.
+
+        One last round of the queues (bounded: publishers that keep going cannot hold the bag
+        open), then the file is finished.
+        """
+        if not self.closed:
+            self._poll()
         with self.lock:
             if self.closed:
                 return
@@ -206,7 +226,7 @@ class RecorderNode(Node):
         self.get_logger().info(f'recorder: closed {self.path} with '
                                f'{sum(self.counts.values())} messages')
         self.stats.data.update(path=str(self.path), counts=self.counts,
-                               repeated_dropped=self.repeated,
+                               repeated_dropped=self.repeated, flushes=self.writer.flushes,
                                niceness=os.getpriority(os.PRIO_PROCESS, 0))
         self.stats.write()
 
