@@ -3,9 +3,12 @@
 import argparse
 import importlib
 import json
+import math
+import os
 from pathlib import Path
 import sys
 import time
+import warnings
 
 import yaml
 
@@ -13,6 +16,7 @@ from mr_suspension.core import config, road as roads
 from mr_suspension.core.metrics import ride_metrics
 from mr_suspension.core.simulator import CornerConfig, simulate
 
+DEBUG_ENV = 'MR_SUSPENSION_DEBUG'  # set to 1 for tracebacks instead of one-line errors
 # Subcommands contributed by the other parts of the package (each has register(subparsers)).
 PLUGINS = ('mr_suspension.identification.cli', 'mr_suspension.evaluation.cli',
            'mr_suspension.nodes.cli', 'mr_suspension.bagtools')
@@ -35,7 +39,10 @@ METRIC_LABELS = {
 def road_spec_from_args(args):
     """Return the road mapping of the ``--road ...`` options (``--road-spec`` wins if given)."""
     if getattr(args, 'road_spec', ''):
-        spec = yaml.safe_load(args.road_spec)
+        try:
+            spec = yaml.safe_load(args.road_spec)
+        except yaml.YAMLError:
+            spec = None
         if not isinstance(spec, dict):
             raise ValueError('--road-spec must be a YAML mapping such as "{type: step}"')
         return spec
@@ -129,8 +136,7 @@ def run_comparison(cfgs, road, out, stem):
 
 def cmd_simulate(args):
     """Simulate one corner (and a passive reference) and write CSV, plots and metrics."""
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(args.out)
     cfg = corner_from_args(args)
     cfgs = {args.controller: cfg}
     if args.reference and args.reference != args.controller:
@@ -149,8 +155,7 @@ def cmd_simulate(args):
 
 def cmd_demo(args):
     """Run the default scenario set: bump and ISO 8608 road, semi-active vs passive."""
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(args.out)
     base = CornerConfig(car=config.load_vehicle('city_car'),
                         damper=config.load_damper('rd1005_bingham'),
                         driver=config.load_driver('wonder_box'))
@@ -219,15 +224,97 @@ def build_parser():
     return parser
 
 
+def output_dir(path, option='--out'):
+    """Create (if needed) and return the output directory ``path``; clear error if it cannot be.
+
+    An existing file, a path through a file or an unwritable place raise ValueError.
+    """
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f'{option} {out} is an existing file, not a directory; give a '
+                         'directory path (it is created if missing)')
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f'cannot create the {option} directory {out} ({exc.strerror}); '
+                         'choose a writable place') from None
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise ValueError(f'{option} directory {out} is not writable; choose a writable place')
+    return out
+
+
+def check_numbers(args):
+    """Reject NaN or infinite float options (argparse's ``float`` accepts them)."""
+    for name, value in vars(args).items():
+        if isinstance(value, float) and not math.isfinite(value):
+            option = '--' + name.replace('_', '-')
+            raise ValueError(f'{option} must be a finite number, got {value}')
+
+
+def _one_line(exc):
+    """Return the message of ``exc`` on one line."""
+    if isinstance(exc, OSError) and exc.strerror:
+        where = f' {exc.filename}' if exc.filename else ''
+        return f'{exc.strerror}:{where}; check the path and its permissions'
+    text = ' '.join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, KeyError):
+        text = f'missing key {text}'
+    return text
+
+
+def _expected_errors():
+    """Exception types that mean bad input (reported as ``error: ...``, exit code 2)."""
+    types = [ValueError, OSError, yaml.YAMLError, MemoryError]
+    try:  # unreadable bags (the readers' own error types)
+        from mcap.exceptions import McapError
+        from rosbags.rosbag2 import ReaderError
+        types += [McapError, ReaderError]
+    except ImportError:
+        pass
+    return tuple(types)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Print a Python warning as one ``warning: ...`` line on stderr."""
+    print(f'warning: {" ".join(str(message).split())}', file=sys.stderr)
+
+
+def run_command(args, prog='mr-suspension'):
+    """Run ``args.func(args)`` and turn errors into one line on stderr.
+
+    Bad input (ValueError, OSError, YAML errors, ...) prints ``<prog> <command>: error: ...``
+    and returns 2; an unexpected exception prints one line asking for a report and returns 1
+    (the traceback only with ``MR_SUSPENSION_DEBUG=1``). Warnings print as ``warning: ...``.
+    """
+    label = f'{prog} {getattr(args, "command", "") or ""}'.strip()
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        try:
+            check_numbers(args)
+            code = args.func(args)
+            return code if isinstance(code, int) else 0  # evaluate returns its rows
+        except KeyboardInterrupt:
+            print(f'{label}: interrupted', file=sys.stderr)
+            return 130
+        except _expected_errors() as exc:
+            if os.environ.get(DEBUG_ENV):
+                raise
+            print(f'{label}: error: {_one_line(exc)}', file=sys.stderr)
+            return 2
+        except Exception as exc:  # noqa: B902 - last resort: one line instead of a traceback
+            if os.environ.get(DEBUG_ENV):
+                raise
+            print(f'{label}: error: internal error ({type(exc).__name__}: {_one_line(exc)}); '
+                  f'please report it with the command line (set {DEBUG_ENV}=1 for the '
+                  'traceback)', file=sys.stderr)
+            return 1
+
+
 def main(argv=None):
     """Entry point of ``mr-suspension``."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return args.func(args)
-    except (ValueError, FileNotFoundError) as exc:
-        print(f'mr-suspension {args.command}: error: {exc}', file=sys.stderr)
-        return 2
+    return run_command(args)
 
 
 if __name__ == '__main__':

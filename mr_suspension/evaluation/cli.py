@@ -7,7 +7,6 @@
 import argparse
 import json
 import math
-from pathlib import Path
 import sys
 import time
 
@@ -168,8 +167,8 @@ def run_evaluate(args, log=print):
         overrides.setdefault('*', {})['estimation'] = args.estimation
     names = scn.expand(args.scenarios)
     studies_ = _studies(args.study)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    from mr_suspension.cli import output_dir
+    out = output_dir(args.out)
     common = {'vehicle': args.vehicle, 'damper': args.damper, 'driver': args.driver}
     study_road = 'bump' if args.light else 'iso_C_20'
     t0 = time.perf_counter()
@@ -329,11 +328,8 @@ def main(argv=None):
     if not argv or argv[0] != 'evaluate':
         argv = ['evaluate'] + argv
     args = parser.parse_args(argv)
-    try:
-        args.func(args)
-    except (ValueError, FileNotFoundError) as exc:
-        parser.error(str(exc))
-    return 0
+    from mr_suspension.cli import run_command  # one-line errors, exit code 2
+    return run_command(args)
 
 
 if __name__ == '__main__':

@@ -92,6 +92,10 @@ def register(subparsers):
 
 def cmd_diagnose(args):
     """Run ``diagnose``."""
+    from mr_suspension.cli import output_dir
+    output_dir(args.out)
+    if not 2 <= args.folds <= 50:
+        raise ValueError(f'--folds must be 2..50, got {args.folds}')
     opts = _load_options(args)
     effects = tuple(e.strip() for e in args.effects.split(',') if e.strip())
     bad = [e for e in effects if e not in engine.EFFECTS]
@@ -185,6 +189,15 @@ def _load_for_predict(path, opts):
 
 def cmd_doe(args):
     """Run ``doe``."""
+    from mr_suspension.core.validation import check_range
+    check_range('doe', '--duration', args.duration, 1.0, 36000.0, 's', 'programme length')
+    check_range('doe', '--rate', args.rate, 10.0, 1.0e5, 'Hz', 'sample rate')
+    check_range('doe', '--stroke', args.stroke, 1.0e-4, 0.5, 'm', 'amplitude')
+    check_range('doe', '--v-max', args.v_max, 1.0e-3, 20.0, 'm/s', 'peak speed')
+    check_range('doe', '--i-max', args.i_max, 1.0e-3, 20.0, 'A', 'largest current')
+    if args.duration * args.rate > 5.0e7:
+        raise ValueError(f'doe: {args.duration * args.rate:.3g} samples is too many; lower '
+                         '--duration or --rate (at most 5e7 samples)')
     t, x, i = synthetic.doe_programme(args.duration, args.rate, args.stroke, args.v_max,
                                       args.i_max, args.seed)
     v = np.gradient(x, 1.0 / args.rate)
@@ -205,11 +218,8 @@ def main(argv=None):
     sub = ap.add_subparsers(dest='command', required=True)
     register(sub)
     args = ap.parse_args(argv)
-    try:
-        return args.func(args)
-    except (dataio.DataError, ValueError) as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+    from mr_suspension.cli import run_command  # one-line errors, exit code 2
+    return run_command(args)
 
 
 if __name__ == '__main__':

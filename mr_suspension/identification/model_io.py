@@ -45,17 +45,44 @@ def save_model(path, model):
 
 
 def load_model(path):
-    """Read and validate a ``model.json``; return the dictionary."""
+    """Read and validate a ``model.json``; return the dictionary.
+
+    Wrong types, missing keys, NaN or implausible values raise a one-line ValueError naming the
+    file and the key.
+    """
     try:
-        model = json.loads(Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f'{path}: cannot read fitted model ({exc})')
+        model = json.loads(Path(path).read_text(encoding='utf-8'))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        raise ValueError(f'{path}: cannot read fitted model ({reason}); give the model.json '
+                         'written by mr-suspension diagnose') from None
+    return check_model(model, path)
+
+
+def check_model(model, path='model.json'):
+    """Validate a model mapping (see :func:`load_model`); return it."""
     if not isinstance(model, dict) or 'damper' not in model:
-        raise ValueError(f'{path}: not a fitted model file (no "damper" block)')
-    if model['damper'].get('law') != 'extended':
-        raise ValueError(f'{path}: damper law must be "extended"')
-    ExtendedDamperParams.from_dict(model['damper'])
-    fitted_dynamics(model.get('current_dynamics', {}))
+        raise ValueError(f'{path}: not a fitted model file (no "damper" block); give the '
+                         'model.json written by mr-suspension diagnose')
+    damper = model['damper']
+    if not isinstance(damper, dict):
+        raise ValueError(f'{path}: "damper" must be a mapping of parameters, got '
+                         f'{type(damper).__name__}')
+    if damper.get('law') != 'extended':
+        raise ValueError(f'{path}: damper law must be "extended", got {damper.get("law")!r}')
+    try:
+        ExtendedDamperParams.from_dict(damper, source=path)
+        if 'current_dynamics' not in model:
+            raise ValueError('missing required key current_dynamics')
+        fitted_dynamics(model['current_dynamics'])
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(msg if str(path) in msg else f'{path}: {msg}') from None
+    inp = model.get('input', {})
+    signal = inp.get('signal') if isinstance(inp, dict) else inp
+    if not isinstance(inp, dict) or (signal is not None and signal not in INPUT_MAPS):
+        raise ValueError(f'{path}: input.signal must be one of {sorted(INPUT_MAPS)}, got '
+                         f'{signal!r}')
     return model
 
 
@@ -79,5 +106,6 @@ def fitted_driver(path, base=None):
 
 def predict(model, record):
     """Force [N] predicted by a model dictionary on a record (same path as the fit)."""
+    check_model(model)
     params = ExtendedDamperParams.from_dict(model['damper'])
     return engine.simulate(record, params, fitted_dynamics(model['current_dynamics']))
