@@ -28,7 +28,10 @@ from mr_suspension.core.extended import ExtendedDamperParams, simulate_extended
 
 EFFECTS = ('current_delay', 'current_lag', 'current_lag_asymmetric', 'current_saturation',
            'hysteresis', 'series_stiffness', 'gas_spring', 'thermal_fade', 'direction_asymmetry')
+SENSOR_EFFECTS = ('channel_delay',)
+ALL_EFFECTS = SENSOR_EFFECTS + EFFECTS
 EFFECT_PARAMS = {
+    'channel_delay': ('delay',),
     'current_delay': ('dead_time',),
     'current_lag': ('tau_lag',),
     'current_lag_asymmetric': ('tau_rise', 'tau_fall'),
@@ -40,6 +43,8 @@ EFFECT_PARAMS = {
     'direction_asymmetry': ('rho',),
 }
 FORCE_DEPENDENT = ('series_stiffness', 'thermal_fade')
+LINEAR_PARAMS = ('rho', 'dead_time', 'delay')  # searched on a linear scale (may be 0 or < 0)
+OUTER = -2  # fold label of the untouched outer blocks
 THETA_NAMES = ('f0', 'c0', 'c1', 'fy0', 'fy1')
 GAS_NAMES = ('k_gas1', 'k_gas2')
 
@@ -67,10 +72,65 @@ def field_current(u, dt, dead_time, tau_rise, tau_fall):
     return out
 
 
+@njit(cache=True)
+def shift_columns(x, s):
+    """Return ``x(t - s dt)`` for every column: a signed fractional shift of ``s`` samples.
+
+    Cubic (Catmull-Rom) interpolation between samples, ends held. A force channel that lags
+    the motion by ``delay`` is modelled by shifting the regressors by ``s = delay / dt``.
+    """
+    n, p = x.shape
+    out = np.empty_like(x)
+    for k in range(n):
+        j = k - s
+        if j <= 0.0:
+            out[k] = x[0]
+            continue
+        if j >= n - 1:
+            out[k] = x[n - 1]
+            continue
+        j1 = int(j)
+        f = j - j1
+        j0 = max(j1 - 1, 0)
+        j2 = j1 + 1
+        j3 = min(j1 + 2, n - 1)
+        w0 = f * (-0.5 + f * (1.0 - 0.5 * f))
+        w1 = 1.0 + f * f * (-2.5 + 1.5 * f)
+        w2 = f * (0.5 + f * (2.0 - 1.5 * f))
+        w3 = f * f * (-0.5 + 0.5 * f)
+        for c in range(p):
+            out[k, c] = w0 * x[j0, c] + w1 * x[j1, c] + w2 * x[j2, c] + w3 * x[j3, c]
+    return out
+
+
+def fold_labels(record, n_folds, gap, blocks_per_fold, outer):
+    """Fold label per sample from the record's time: ``k`` (inner fold), ``OUTER`` or -1.
+
+    The record's time span is cut into ``(K + outer) * blocks_per_fold`` contiguous blocks dealt
+    to the labels in turn; ``gap`` s at every block edge and masked samples get -1 (unused).
+    Labels come from time, not sample index, so a decimated copy gets the same blocks.
+    """
+    labels = n_folds + (1 if outer else 0)
+    nb = labels * blocks_per_fold
+    t = record.time - record.time[0]
+    span = float(t[-1]) + record.dt
+    pos = t / span * nb
+    b = np.minimum(pos.astype(int), nb - 1)
+    g = min(gap, 0.1 * span / nb) / span * nb
+    frac = pos - b
+    lab = b % labels
+    f = np.where(lab == n_folds, OUTER, lab)
+    f[(frac < g) | (frac > 1.0 - g)] = -1
+    mask = getattr(record, 'mask', None)
+    if mask is not None:
+        f[~np.asarray(mask, dtype=bool)] = -1
+    return f
+
+
 class Dataset:
     """Concatenated records with block/fold structure and the scales used by the grids."""
 
-    def __init__(self, records, n_folds=5, gap=0.1, blocks_per_fold=4):
+    def __init__(self, records, n_folds=5, gap=0.1, blocks_per_fold=4, outer=False):
         if n_folds < 2:
             raise ValueError('n_folds must be >= 2')
         self.records = list(records)
@@ -82,18 +142,15 @@ class Dataset:
         for r in self.records:
             self.slices.append(slice(start, start + r.n))
             start += r.n
-            nb = n_folds * blocks_per_fold
-            edges = np.linspace(0, r.n, nb + 1).astype(int)
-            g = int(min(gap / r.dt, 0.1 * (edges[1] - edges[0])))
-            f = np.full(r.n, -1)
-            for b in range(nb):
-                f[edges[b] + g:edges[b + 1] - g] = b % n_folds
-            fold.append(f)
+            fold.append(fold_labels(r, n_folds, gap, blocks_per_fold, outer))
         self.fold = np.concatenate(fold)
+        self.outer = self.fold == OUTER
+        self.fold[self.outer] = -1  # the inner cross-validation never sees the outer blocks
         self.order = np.argsort(self.fold, kind='stable')
         counts = np.bincount(self.fold + 1, minlength=n_folds + 1)
         self.bounds = np.cumsum(counts)
-        self.f_std = float(np.std(self.force))
+        used = self.fold >= 0
+        self.f_std = float(np.std(self.force[used])) if used.any() else float(np.std(self.force))
         x = np.concatenate([r.displacement for r in self.records])
         v = np.concatenate([r.velocity for r in self.records])
         i = np.concatenate([r.i_in for r in self.records])
@@ -130,6 +187,9 @@ class Dataset:
             return self.t_max * np.array([0.3, 1.0, 3.0, 30.0])
         if name == 'rho':
             return np.linspace(-0.45, 0.45, 19)
+        if name == 'delay':
+            return np.array([-20, -12, -8, -5, -3, -2, -1.2, -0.6, 0, 0.6, 1.2, 2, 3, 5, 8, 12,
+                             20]) * ms
         raise KeyError(name)
 
 
@@ -137,7 +197,7 @@ def neutral_eta():
     """Nonlinear parameters with every effect off (v_y set by the search)."""
     return {'v_y': 0.01, 'dead_time': 0.0, 'tau_lag': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0,
             'i_sat': 0.0, 'x_h': 0.0, 'k_series': 0.0, 'kappa': 0.0, 'tau_thermal': 600.0,
-            'rho': 0.0}
+            'rho': 0.0, 'delay': 0.0}
 
 
 def current_dynamics(effects, eta):
@@ -170,12 +230,18 @@ def damper_params(effects, eta, theta):
     return ExtendedDamperParams(**{k: float(v) for k, v in d.items()})
 
 
-def simulate(record, params, dyn):
-    """Predicted force of a fitted model on a record: current dynamics then ``extended_force``."""
+def simulate(record, params, dyn, delay=0.0):
+    """Predicted force of a fitted model on a record: current dynamics then ``extended_force``.
+
+    ``delay`` [s] is a force-channel delay (sensor): the prediction is shifted to ``t - delay``.
+    """
     i_f = field_current(record.i_in, record.dt, dyn['dead_time'], dyn['tau_rise'],
                         dyn['tau_fall'])
-    return simulate_extended(params.to_array(), record.displacement, record.velocity, i_f,
-                             record.dt)[0]
+    f = simulate_extended(params.to_array(), record.displacement, record.velocity, i_f,
+                          record.dt)[0]
+    if delay:
+        f = shift_columns(f[:, None], delay / record.dt)[:, 0]
+    return f
 
 
 def design(ds, effects, eta, theta_prev):
@@ -195,7 +261,10 @@ def design(ds, effects, eta, theta_prev):
         c = [np.ones(r.n), mu, mu * i_f, my, my * g]
         if gas:
             c += [r.displacement, r.displacement ** 2]
-        cols.append(np.column_stack(c))
+        x = np.column_stack(c)
+        if 'channel_delay' in effects and eta['delay']:
+            x = shift_columns(x, eta['delay'] / r.dt)
+        cols.append(x)
     return np.vstack(cols)
 
 
@@ -289,12 +358,19 @@ class FitResult:
         """Return the fitted dead time and rise/fall time constants (all data)."""
         return current_dynamics(self.effects, self.eta)
 
+    @property
+    def delay(self):
+        """Fitted force-channel delay [s] (0 unless ``channel_delay`` is in the model)."""
+        return float(self.eta['delay']) if 'channel_delay' in self.effects else 0.0
+
     def effect_params(self, effect):
         """Parameters that define one effect in this fit (SI)."""
         if effect == 'gas_spring':
             return {'k_gas1': float(self.theta[5]), 'k_gas2': float(self.theta[6])}
         if effect == 'current_lag':
             return {'tau': float(self.eta['tau_lag'])}
+        if effect == 'channel_delay':
+            return {'delay': float(self.eta['delay'])}
         return {n: float(self.eta[n]) for n in EFFECT_PARAMS[effect]}
 
 
@@ -358,7 +434,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
     def refine(name, res):
         """Parabolic steps (log scale for positive scales) around the best grid value."""
         pts = sorted(res, key=lambda t: t[1])
-        lin = name in ('rho', 'dead_time')
+        lin = name in LINEAR_PARAMS
         for _ in range(2):
             vals = [t[1] for t in pts]
             best = min(pts)
@@ -398,6 +474,9 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                 fine = it >= 3
                 if name == 'dead_time':
                     steps = [c - ds.dt_min, c + ds.dt_min]
+                elif name == 'delay':
+                    h = (0.05 if fine else 0.25) * ds.dt_min
+                    steps = [c - h, c + h]
                 elif name == 'rho':
                     steps = [c - 0.003, c + 0.003] if fine else [c - 0.01, c + 0.01]
                 elif c > 0:
@@ -407,7 +486,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                 best = state['best'].sse
                 moved = False
                 for val in steps:
-                    if val < 0 or (name == 'rho' and abs(val) > 0.49):
+                    if (val < 0 and name != 'delay') or (name == 'rho' and abs(val) > 0.49):
                         continue
                     e = dict(state['best'].eta)
                     e[name] = float(val)
@@ -463,6 +542,8 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                     grid = np.clip(grid, -0.49, 0.49)
                 elif name == 'dead_time':
                     grid = np.maximum(0.0, c + ds.dt_min * np.array([-2, -1, 0, 1, 2]))
+                elif name == 'delay':
+                    grid = c + ds.dt_min * np.array([-1.0, -0.4, 0.0, 0.4, 1.0])
                 elif c > 0:
                     grid = c * np.asarray(local)
                 else:
@@ -470,7 +551,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
             res = search(name, grid)
             refine(name, res)
             update_theta()
-    polish([n for n in names if n in _new_names(new) or n == 'dead_time'] + ['v_y'])
+    polish([n for n in names if n in _new_names(new) or n in ('dead_time', 'delay')] + ['v_y'])
     lags = [n for n in ('tau_lag', 'tau_rise', 'tau_fall') if n in names]
     if 'dead_time' in names and lags:
         # Dead time and lag trade against each other at a constant mean delay: scan along
@@ -486,20 +567,28 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
             ev(e)
         polish(['dead_time'] + lags)
     cont = [n for n in names + ['v_y'] if n != 'dead_time'
-            and (n == 'rho' or state['best'].eta[n] > 0)]
+            and (n in LINEAR_PARAMS or state['best'].eta[n] > 0)]
     if joint and len(cont) >= 2:
         # Joint Nelder-Mead on log-parameters: coupled pairs (k1 and v_y, x_h and k1) defeat
         # a coordinate search.
-        z0 = np.array([state['best'].eta[n] if n == 'rho' else math.log(state['best'].eta[n])
-                       for n in cont])
+        scale = {'rho': 1.0, 'delay': 1.0 / ds.dt_min}
+        z0 = np.array([state['best'].eta[n] * scale[n] if n in scale
+                       else math.log(state['best'].eta[n]) for n in cont])
 
         def obj(z):
             e = dict(state['best'].eta)
             for n, val in zip(cont, z):
-                e[n] = float(np.clip(val, -0.49, 0.49)) if n == 'rho' else float(math.exp(val))
+                if n == 'rho':
+                    e[n] = float(np.clip(val, -0.49, 0.49))
+                elif n == 'delay':
+                    e[n] = float(val / scale[n])
+                else:
+                    e[n] = float(math.exp(val))
             return ev(e).sse
 
-        simplex = np.vstack([z0] + [z0 + 0.15 * np.eye(len(z0))[j] for j in range(len(z0))])
+        step = np.array([0.3 if n == 'delay' else 0.15 for n in cont])
+        simplex = np.vstack([z0] + [z0 + step[j] * np.eye(len(z0))[j]
+                                    for j in range(len(z0))])
         optimize.minimize(obj, z0, method='Nelder-Mead',
                           options={'maxfev': joint, 'initial_simplex': simplex,
                                    'xatol': 1e-3, 'fatol': 0.0})
