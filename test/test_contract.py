@@ -23,9 +23,10 @@ def test_yaml_and_module_agree():
 
 
 def test_names_relative_and_types_standard():
-    for name, topic in c.TOPICS.items():
-        assert name == c.CLOCK or not name.startswith('/'), name
-        assert topic.type.split('/')[0] in ('std_msgs', 'sensor_msgs', 'rosgraph_msgs')
+    for name, topic in c.ALL_TOPICS.items():
+        assert name in (c.CLOCK, c.DIAGNOSTICS) or not name.startswith('/'), name
+        assert topic.type.split('/')[0] in ('std_msgs', 'sensor_msgs', 'rosgraph_msgs',
+                                            'diagnostic_msgs')
 
 
 def test_nodes_and_recorder_follow_contract(tmp_path):
@@ -44,7 +45,7 @@ def test_nodes_and_recorder_follow_contract(tmp_path):
                     output=str(tmp_path / 'bag'), lockstep=True))),
         }
         for name, node in made.items():
-            full = {t: node.resolve_topic_name(t) for t in c.TOPICS}
+            full = {t: node.resolve_topic_name(t) for t in c.ALL_TOPICS}
             pubs = {p.topic_name: p for p in node.publishers if p.topic_name not in AUTO}
             subs = {}
             # (the recorder's subscriptions sit on its internal, polled taps node)
@@ -56,8 +57,8 @@ def test_nodes_and_recorder_follow_contract(tmp_path):
             assert set(subs) <= {full[t] for t in c.subscribed_by(name, optional=True)}, name
             for t in c.published_by(name):
                 pub = pubs[full[t]]
-                assert _type_name(pub.msg_type) == c.TOPICS[t].type
-                assert pub.qos_profile.depth == c.TOPICS[t].depth
+                assert _type_name(pub.msg_type) == c.ALL_TOPICS[t].type
+                assert pub.qos_profile.depth == c.ALL_TOPICS[t].depth
             for t in c.subscribed_by(name):
                 # (the recorder's time source adds its own /clock subscription)
                 assert any(_type_name(sub.msg_type) == c.TOPICS[t].type

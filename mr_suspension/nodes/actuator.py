@@ -18,9 +18,19 @@ controller off the plant-actuator critical path. With ``coupling_delay`` d > 0 (
 force ``k`` to step ``k + d``) the damper is evaluated with the field current of sample ``k + d``,
 which the dead-time buffer already holds (exact for d < dead time in samples).
 
-Commands are checked: NaN/inf are rejected (the previous valid command is held), values outside
-``[current_min, current_max]`` are clamped, both with a throttled log. Before the first command,
-or when commands are older than ``command_timeout`` (real time), ``safe_current`` is applied.
+Fail-safe (real time; :mod:`mr_suspension.nodes.health`, fault matrix in ``docs/nodes.md``):
+commands are checked: NaN/inf are rejected (the previous command is held) and values outside
+``[current_min, current_max]`` are clamped; neither refreshes the command time, so only valid
+in-range commands keep the actuator out of its fallback. With no such command for
+``command_timeout`` (controller dead, silent, NaN/inf or always out of range) it applies
+``safe_current``. With no motion sample for ``motion_timeout`` (plant dead) it cannot publish
+forces, but keeps stepping the driver at ``safe_current`` on its watchdog (steady clock, every
+``watchdog_period``) and publishes the coil current. It leaves a fallback after
+``recovery_time`` of healthy inputs; one log line on entering and one on leaving, and a
+``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics``. At start-up it checks ``rate``,
+``lockstep``, ``coupling_delay`` (lock-step) and the corner's parameter sets against the plant's
+and the controller's parameters (:class:`~mr_suspension.nodes.health.PeerCheck`); a mismatch is
+an ERROR and ``safe_current`` (also in lock-step) until that peer restarts.
 """
 
 from collections import deque
@@ -33,7 +43,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from mr_suspension.core.stepper import ActuatorStepper
-from mr_suspension.nodes import cdr, common, contract as c
+from mr_suspension.nodes import cdr, common, contract as c, health
+from mr_suspension.nodes.health import ERROR, WARN
 
 NODE = 'actuator'
 SUSPENSION = c.JOINTS_TRUTH.index('suspension')
@@ -53,11 +64,21 @@ class ActuatorNode(Node):
                                           '[A]; lower ones are clamped', 0.0, 10.0)
         self.current_max = common.declare(self, d, 'current_max', 'Highest accepted command '
                                           '[A]; higher ones are clamped', 0.0, 10.0)
-        self.safe_current = common.declare(self, d, 'safe_current', 'Current before the first '
-                                           'command and on command timeout [A]', 0.0, 10.0)
-        self.command_timeout = common.declare(self, d, 'command_timeout', 'Real time: commands '
-                                              'older than this give safe_current [s]',
-                                              0.0005, 10.0)
+        self.safe_current = common.declare(self, d, 'safe_current', 'Current applied before the '
+                                           'first command and in every fallback [A]', 0.0, 10.0)
+        self.command_timeout = common.declare(
+            self, d, 'command_timeout', 'Real time: no valid in-range command for this long '
+            'gives safe_current [s]', 0.0005, 10.0)
+        self.motion_timeout = common.declare(
+            self, d, 'motion_timeout', 'Real time: no motion sample for this long (plant dead): '
+            'no forces, the driver is stepped at safe_current [s]', 0.0005, 10.0)
+        self.watchdog_period = common.declare(self, d, 'watchdog_period', 'Real time: fault '
+                                              'check period (steady clock) [s]', 0.0005, 1.0)
+        recovery_time = common.declare(self, d, 'recovery_time', 'Inputs healthy this long '
+                                       'before leaving a fallback [s]', 0.0, 10.0)
+        diagnostic_period = common.declare(self, d, 'diagnostic_period', 'Period of the '
+                                           '/diagnostics status (also sent on every change) '
+                                           '[s]', 0.01, 60.0)
         self.coupling_delay = common.declare(
             self, d, 'coupling_delay', 'Lock-step: the plant applies each force this many '
             'samples late (set it as the plant does); the damper is evaluated with the field '
@@ -94,8 +115,8 @@ class ActuatorNode(Node):
         self.tpl_force = cdr.Template(force, ('position[0]', 'velocity[0]', 'effort[0]',
                                               'effort[1]'))
         self.tpl_coil = cdr.Template(Float64(), ('data',), stamped=False)
-        self.command = self.safe_current
-        self.command_time = -math.inf
+        self.command = self.safe_current  # newest accepted command (clamped)
+        self.command_time = -math.inf  # monotonic time of the newest valid in-range command
         self.have_command = False
         self.commands = deque()
         self.motions = {}  # lock-step: stamp -> motion sample not answered yet
@@ -106,40 +127,119 @@ class ActuatorNode(Node):
         self.commands_done = 0
         self.n_rejected = 0
         self.n_clamped = 0
+        self.bad_at_valid = (0, 0)  # (rejected, clamped) at the newest valid command
         self.n_commands = 0
         self.last_input = time.monotonic()
         self.n_commands_run = 0
         self.n_forces = 0
         self.n_motion = 0
+        self.motion_time = None  # monotonic time of the newest motion sample
+        self.driver_time = None  # monotonic time the driver was last stepped
+        self.last_x = 0.0
+        self.applied = self.safe_current  # current last given to the driver
+        self.n_alone = 0  # driver steps without motion (plant dead)
+        self.health = health.Health(self, f'safe current {self.safe_current:g} A to the driver',
+                                    recovery_time, diagnostic_period, self.lockstep,
+                                    self._diagnostic_values)
+        names = ('rate', 'lockstep', 'vehicle', 'damper', 'driver', 'coupling_delay')
+        mine = {n: self.get_parameter(n).value for n in names}
+        corner = [('rate', True), ('lockstep', True), ('vehicle', True), ('damper', True),
+                  ('driver', True)]
+        self.peers = health.PeerCheck(self, self.health, mine, {
+            'plant': corner + ([('coupling_delay', True)] if self.lockstep else []),
+            'controller': [('rate', True), ('lockstep', True), ('vehicle', False),
+                           ('damper', False), ('driver', False)]})
+        if self.lockstep:
+            self.create_timer(diagnostic_period, self.health.tick, clock=health.steady_clock())
+        else:
+            self.health.set('command', WARN, 'no valid command yet')
+            self.health.set('motion', WARN, 'no motion sample yet')
+            self.create_timer(self.watchdog_period, self._on_watchdog,
+                              clock=health.steady_clock())
 
-    def validate(self, value):
-        """Return the current to apply for a received command (clamped, NaN rejected)."""
+    def validate(self, value, now):
+        """Return the current to apply for a received command (clamped; NaN/inf hold).
+
+        Only a finite in-range command refreshes the command time (``now``, monotonic).
+        """
         if not math.isfinite(value):
             self.n_rejected += 1
-            self.get_logger().warning(f'actuator: rejected invalid command {value!r}; holding '
-                                      f'{self.command:g} A', throttle_duration_sec=1.0)
             return self.command
         if value < self.current_min or value > self.current_max:
             self.n_clamped += 1
-            clamped = min(max(value, self.current_min), self.current_max)
-            self.get_logger().warning(f'actuator: command {value:g} A outside '
-                                      f'[{self.current_min:g}, {self.current_max:g}] A, '
-                                      f'clamped to {clamped:g} A', throttle_duration_sec=1.0)
-            return clamped
+            self.command = min(max(value, self.current_min), self.current_max)
+            return self.command
+        self.command = value
+        self.command_time = now
+        self.bad_at_valid = (self.n_rejected, self.n_clamped)
+        if 'command' in self.health.faults:
+            self.health.clear('command', now)
         return value
 
     def _on_command(self, msg):
-        self.last_input = time.monotonic()
+        now = time.monotonic()
+        self.last_input = now
         self.n_commands += 1
         if self.stats.marked:
             self.n_commands_run += 1
-        i = self.validate(cdr.float64(msg))
-        self.command = i
-        self.command_time = time.monotonic()
+        i = self.validate(cdr.float64(msg), now)
         self.have_command = True
         if self.lockstep:
             self.commands.append(i)
             self._run_lockstep()
+
+    # -- fail-safe (real time) ---------------------------------------------------------------
+
+    def _command_fault(self, now):
+        age = now - self.command_time
+        since = f'for {1e3 * age:.0f} ms' if math.isfinite(age) else 'yet'
+        rejected = self.n_rejected - self.bad_at_valid[0]
+        clamped = self.n_clamped - self.bad_at_valid[1]
+        level = WARN
+        if self.count_publishers(c.CURRENT_COMMAND) == 0:
+            reason, level = f'no controller publishes {c.CURRENT_COMMAND} (dead?)', ERROR
+        elif rejected or clamped:
+            reason = (f'no valid command {since}: {rejected} rejected (NaN/inf), {clamped} '
+                      f'outside [{self.current_min:g}, {self.current_max:g}] A')
+        else:
+            reason = f'no command {since} (controller silent)'
+        self.health.set('command', level, reason, now)
+
+    def _on_watchdog(self):
+        now = time.monotonic()
+        faults = self.health.faults
+        if now - self.command_time > self.command_timeout and 'command' not in faults:
+            self._command_fault(now)
+        if self.motion_time is not None and now - self.motion_time > self.motion_timeout:
+            if 'motion' not in faults:
+                self.health.set('motion', ERROR, f'no motion sample ({c.TRUTH_STATE}) for '
+                                f'{1e3 * (now - self.motion_time):.0f} ms (plant dead?): no '
+                                'damper force published', now)
+            self._step_alone(now)
+        self.health.tick(now)
+
+    def _step_alone(self, now):
+        """Plant dead: step the driver at the safe current up to ``now``, publish the coil."""
+        dt = self.config.dt
+        n = int((now - self.driver_time) / dt)
+        if n > 1000:  # starved for over a second at 1 kHz: do not replay all of it
+            self.driver_time = now - n * dt
+            n = 1000
+        for _ in range(n):
+            coil = self.stepper.step(self.safe_current, self.last_x, 0.0)[0]
+            self.pub_coil.publish(self.tpl_coil.pack(0, coil))
+        self.driver_time += n * dt
+        self.n_alone += n
+        self.applied = self.safe_current
+
+    def _diagnostic_values(self):
+        now = time.monotonic()
+        motion = 'never' if self.motion_time is None else f'{1e3 * (now - self.motion_time):.1f}'
+        return (('safe_current_A', f'{self.safe_current:g}'), ('applied_A', f'{self.applied:g}'),
+                ('command_age_ms', f'{1e3 * (now - self.command_time):.1f}'),
+                ('motion_age_ms', motion), ('rejected_commands', self.n_rejected),
+                ('clamped_commands', self.n_clamped), ('forces_published', self.n_forces),
+                ('driver_steps_without_motion', self.n_alone))
 
     def _on_motion(self, msg):
         stamp, position, velocity, _ = cdr.joint_state(msg)
@@ -166,13 +266,17 @@ class ActuatorNode(Node):
             return
         # Real time: answer at once with the newest command, so the force is back at the plant
         # before its next step (the command is then normally one sample old).
+        now = time.monotonic()
         self.n_motion += 1
-        self._apply(self._current_now(), motion)
-
-    def _current_now(self):
-        recent = self.have_command and \
-            time.monotonic() - self.command_time <= self.command_timeout
-        return self.command if recent else self.safe_current
+        self.motion_time = now
+        faults = self.health.faults
+        if 'motion' in faults:
+            self.health.clear('motion', now)
+        if now - self.command_time > self.command_timeout and 'command' not in faults:
+            self._command_fault(now)
+        self._apply(self.safe_current if self.health.fallback else self.command, motion)
+        self.driver_time = now
+        self.last_x = motion[1]
 
     def _run_lockstep(self):
         if not self.gate.check():
@@ -181,7 +285,8 @@ class ActuatorNode(Node):
         # and re-sent by the plant) is waited for.
         if not self.stepper.command_ahead:
             while self.commands and self.forces_done * self.dt_ns in self.motions:
-                self._apply(self.commands.popleft(),
+                i = self.commands.popleft()
+                self._apply(self.safe_current if self.health.fallback else i,
                             self.motions.pop(self.forces_done * self.dt_ns))
                 self.forces_done += 1
             return
@@ -198,7 +303,8 @@ class ActuatorNode(Node):
                 self.forces_done += 1
                 progress = True
             if self.commands_done < self.forces_done and self.commands:
-                self.stepper.command(self.commands.popleft())
+                i = self.commands.popleft()
+                self.stepper.command(self.safe_current if self.health.fallback else i)
                 self.commands_done += 1
                 progress = True
 
@@ -211,6 +317,7 @@ class ActuatorNode(Node):
         return stamp, x, v
 
     def _apply(self, i_cmd, motion):
+        self.applied = i_cmd
         stamp, x, v = self._checked(motion)
         self._publish(stamp, x, v, *self.stepper.step(i_cmd, x, v))
 
@@ -233,7 +340,9 @@ class ActuatorNode(Node):
         self.stats.data.update(commands=self.n_commands, commands_after_start=self.n_commands_run,
                                forces_published=self.n_forces, motion_samples=self.n_motion,
                                repeated_motion=self.n_repeated,
-                               rejected=self.n_rejected, clamped=self.n_clamped)
+                               rejected=self.n_rejected, clamped=self.n_clamped,
+                               fallback_episodes=self.health.episodes,
+                               driver_steps_without_motion=self.n_alone)
         self.stats.write()
 
 

@@ -66,7 +66,7 @@ def qos(topic, lockstep=False, loop_reader=False):
     idempotently (:mod:`mr_suspension.nodes.plant`). Writers stay reliable, so recorders keep
     reliable delivery.
     """
-    t = contract.TOPICS[topic]
+    t = contract.ALL_TOPICS[topic]
     rel = ReliabilityPolicy.RELIABLE if t.reliability == 'reliable' \
         else ReliabilityPolicy.BEST_EFFORT
     dur = DurabilityPolicy.TRANSIENT_LOCAL if lockstep else DurabilityPolicy.VOLATILE

@@ -23,9 +23,15 @@ class Topic:
     depth: int
     units: str
     frame_id: str
-    publisher: str
+    publisher: object  # a node name, or a tuple of node names
     subscribers: tuple
     optional_subscribers: tuple = ()  # subscribe only in some configurations
+    recorded: bool = True  # recorded by default (a data topic of the corner)
+
+    @property
+    def publishers(self):
+        """Publishing node names as a tuple."""
+        return (self.publisher,) if isinstance(self.publisher, str) else tuple(self.publisher)
 
 
 IMU_BODY = 'imu/body'
@@ -37,6 +43,8 @@ DAMPER_FORCE = 'damper/force'
 TRUTH_STATE = 'truth/state'
 TRUTH_TYRE_FORCE = 'truth/tyre_force'
 CLOCK = '/clock'
+DIAGNOSTICS = '/diagnostics'
+ABSOLUTE = (CLOCK, DIAGNOSTICS)  # the only names not relative to the corner's namespace
 
 # Frames and joint names used in the messages.
 FRAME_BODY_IMU = 'body_imu'
@@ -53,8 +61,10 @@ IMU = 'sensor_msgs/msg/Imu'
 JOINT_STATE = 'sensor_msgs/msg/JointState'
 FLOAT64 = 'std_msgs/msg/Float64'
 CLOCK_TYPE = 'rosgraph_msgs/msg/Clock'
+DIAGNOSTIC_ARRAY = 'diagnostic_msgs/msg/DiagnosticArray'
+DIAGNOSTICS_DEPTH = 10
 
-TOPICS = {t.name: t for t in (
+ALL_TOPICS = {t.name: t for t in (
     Topic(IMU_BODY, IMU, 1000, _R, DEPTH, 'm/s^2 (linear_acceleration)', FRAME_BODY_IMU,
           'plant', ('controller', 'recorder')),
     Topic(IMU_WHEEL, IMU, 1000, _R, DEPTH, 'm/s^2 (linear_acceleration)', FRAME_WHEEL_IMU,
@@ -71,17 +81,21 @@ TOPICS = {t.name: t for t in (
           FRAME_WORLD, 'plant', ('actuator', 'recorder')),
     Topic(TRUTH_TYRE_FORCE, FLOAT64, 1000, _R, DEPTH, 'N', '', 'plant', ('recorder',)),
     Topic(CLOCK, CLOCK_TYPE, 1000, _R, DEPTH, 's', '', 'plant', ('recorder',)),
+    Topic(DIAGNOSTICS, DIAGNOSTIC_ARRAY, 1, _R, DIAGNOSTICS_DEPTH, '', '',
+          ('controller', 'actuator'), (), recorded=False),
 )}
+# The corner's data topics (what the recorder records by default).
+TOPICS = {n: t for n, t in ALL_TOPICS.items() if t.recorded}
 
 
 def published_by(node):
     """Names of the topics ``node`` publishes."""
-    return sorted(n for n, t in TOPICS.items() if t.publisher == node)
+    return sorted(n for n, t in ALL_TOPICS.items() if node in t.publishers)
 
 
 def subscribed_by(node, optional=False):
     """Names of the topics ``node`` subscribes to (``optional``: also those it may)."""
-    return sorted(n for n, t in TOPICS.items()
+    return sorted(n for n, t in ALL_TOPICS.items()
                   if node in t.subscribers or (optional and node in t.optional_subscribers))
 
 
@@ -105,19 +119,22 @@ def check_against_yaml(path=None):
     """Return a list of differences between this module and the YAML contract (empty: agree)."""
     doc = load_yaml(path)
     errors = []
-    for name in sorted(set(doc) ^ set(TOPICS)):
+    for name in sorted(set(doc) ^ set(ALL_TOPICS)):
         errors.append(f'{name}: only in {"YAML" if name in doc else "contract.py"}')
-    for name in sorted(set(doc) & set(TOPICS)):
-        y, t = doc[name], TOPICS[name]
+    for name in sorted(set(doc) & set(ALL_TOPICS)):
+        y, t = doc[name], ALL_TOPICS[name]
+        pub = y.get('publisher')
         got = {'type': y.get('type'), 'rate': float(y.get('rate')),
                'reliability': y.get('qos', {}).get('reliability'),
                'depth': y.get('qos', {}).get('depth'), 'units': y.get('units'),
-               'frame_id': y.get('frame_id'), 'publisher': y.get('publisher'),
+               'frame_id': y.get('frame_id'),
+               'publisher': tuple(pub) if isinstance(pub, list) else pub,
                'subscribers': tuple(y.get('subscribers', ())),
-               'optional_subscribers': tuple(y.get('optional_subscribers', ()))}
+               'optional_subscribers': tuple(y.get('optional_subscribers', ())),
+               'recorded': y.get('recorded', True)}
         for key, value in got.items():
             if value != getattr(t, key) and not (key == 'rate' and value == float(t.rate)):
                 errors.append(f'{name}.{key}: YAML {value!r} != contract.py {getattr(t, key)!r}')
-        if name.startswith('/') and name != CLOCK:
-            errors.append(f'{name}: names must be relative (except /clock)')
+        if name.startswith('/') and name not in ABSOLUTE:
+            errors.append(f'{name}: names must be relative (except {", ".join(ABSOLUTE)})')
     return errors

@@ -14,13 +14,19 @@ subscribes to ``coil_current`` only for them (one message a sample less on the l
   sensor messages with the same stamp are in (the sensors' fixed rate; no added latency).
   ``trigger: timer``: a wall timer at ``rate`` runs the law on the newest value of every sensor
   (for sensor drivers whose stamps are not synchronised).
-* Real time (both triggers): a watchdog every ``watchdog_period`` (``trigger: sample``; the
-  ``rate`` timer with ``trigger: timer``): if any sensor is older than ``sensor_timeout`` (or
-  never arrived), or a value is NaN, it publishes ``fallback_current`` instead, so the fallback
-  starts at most ``sensor_timeout + watchdog_period`` after the last sample, and logs it once per
-  episode (and the recovery).
+* Real time (both triggers): a watchdog every ``watchdog_period`` (steady clock; with
+  ``trigger: timer`` the ``rate`` timer) commands ``fallback_current`` while any fault is active
+  (:mod:`mr_suspension.nodes.health`, fault matrix in ``docs/nodes.md``): a sensor older than
+  ``sensor_timeout`` or never arrived, no complete sample within it, a NaN/inf value, a sensor
+  frozen (value unchanged for ``frozen_timeout`` while another one changes, or at all with
+  ``frozen_requires_motion: false``), stamps off the node clock by more than ``sensor_timeout``
+  (dropped) or jumping against their arrival times (clock jumps), or peers whose ``rate``,
+  ``lockstep`` or gravity disagree. The law keeps running on valid samples during a fallback
+  (its estimators stay continuous); the fallback ends after ``recovery_time`` of healthy
+  inputs. One log line on entering and one on leaving; status on ``/diagnostics``.
 * Lock-step: sample trigger that also waits for the coil current of the step before (when it
-  subscribes to it), so the run is deterministic; no watchdog (the plant waits for the loop).
+  subscribes to it), so the run is deterministic; no timing watchdog (the plant waits for the
+  loop), NaN values and peer mismatches still give the fallback.
 """
 
 from collections import deque
@@ -34,7 +40,8 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64
 
 from mr_suspension.core.stepper import ControllerStepper
-from mr_suspension.nodes import cdr, common, contract as c
+from mr_suspension.nodes import cdr, common, contract as c, health
+from mr_suspension.nodes.health import WARN
 
 NODE = 'controller'
 
@@ -54,7 +61,19 @@ class ControllerNode(Node):
         self.sensor_timeout = common.declare(self, d, 'sensor_timeout', 'Sensors older than '
                                              'this trigger the fallback [s]', 0.0005, 10.0)
         self.fallback_current = common.declare(self, d, 'fallback_current', 'Safe fixed '
-                                               'current while sensors are stale [A]', 0.0, 10.0)
+                                               'current commanded in every fallback [A]', 0.0,
+                                               10.0)
+        self.frozen_timeout = common.declare(
+            self, d, 'frozen_timeout', 'Real time: a sensor whose value has not changed for '
+            'this long is frozen [s]', 0.001, 10.0)
+        self.frozen_requires_motion = common.declare(
+            self, d, 'frozen_requires_motion', 'Frozen only while another sensor changes (exact '
+            'simulated values at rest never change); false for real, noisy sensors')
+        recovery_time = common.declare(self, d, 'recovery_time', 'Inputs healthy this long '
+                                       'before leaving a fallback [s]', 0.0, 10.0)
+        diagnostic_period = common.declare(self, d, 'diagnostic_period', 'Period of the '
+                                           '/diagnostics status (also sent on every change) '
+                                           '[s]', 0.01, 60.0)
         self.trigger = common.declare(self, d, 'trigger', 'Run the law per complete sensor '
                                       'sample ("sample") or on a wall timer ("timer")')
         if self.trigger not in ('sample', 'timer'):
@@ -99,35 +118,67 @@ class ControllerNode(Node):
         self.coil_latest = math.nan
         self.pending = {}
         self.k = 0
-        self.fallback = False
         self.n_fallback = 0
         self.n_cmd = 0
         self.n_dropped = 0
+        self.drop_offset = 0  # [ns] stamp minus node clock of the newest dropped sample
         self.timeout_ns = int(self.sensor_timeout * 1e9)
         self.last_input = time.monotonic()
         self.last_law = -math.inf
+        self.last_cmd = -math.inf
         self.n_cmd_run = 0
         self.n_sensor = dict.fromkeys(self.latest, 0)
+        self.last_stamp = dict.fromkeys(self.latest)
+        self.changed = dict.fromkeys(self.latest, -math.inf)  # last change of the value
+        self.clock_event = -math.inf
         self.timer = None
         self.gate = None
+        self.health = health.Health(self, f'fallback current {self.fallback_current:g} A '
+                                    'commanded', recovery_time, diagnostic_period,
+                                    self.lockstep, self._diagnostic_values)
+        names = ('rate', 'lockstep', 'vehicle', 'damper', 'driver', 'gravity')
+        mine = {n: self.get_parameter(n).value for n in names}
+        model = [('vehicle', False), ('damper', False), ('driver', False)]
+        self.peers = health.PeerCheck(self, self.health, mine, {
+            'plant': [('rate', True), ('lockstep', True), ('gravity', True)] + model,
+            'actuator': [('rate', True), ('lockstep', True)] + model})
+        steady = health.steady_clock()
         if self.lockstep:
             self.gate = common.MatchGate(self, [(self.pub_cmd, 1 + recorders)], self._run_samples)
+            self.create_timer(diagnostic_period, self.health.tick, clock=steady)
         else:
+            self.health.set('stale', WARN, 'no sensor data yet')
             period = self.config.dt if self.trigger == 'timer' else self.watchdog_period
-            self.timer = self.create_timer(period, self._on_tick)
+            self.timer = self.create_timer(period, self._on_tick, clock=steady)
+
+    @property
+    def fallback(self):
+        """True while the fallback current is commanded."""
+        return self.health.fallback
 
     # -- inputs ----------------------------------------------------------------------------
 
     def _store(self, topic, stamp, value):
+        now = time.monotonic()
         if not self.stats.marked:
             self.stats.mark()
-        self.last_input = time.monotonic()
+        self.last_input = now
         self.n_sensor[topic] += 1
-        if not self.lockstep and self.get_clock().now().nanoseconds - stamp > self.timeout_ns:
-            self.n_dropped += 1
-            return
+        if not self.lockstep:
+            offset = stamp - self.get_clock().now().nanoseconds
+            if offset < -self.timeout_ns or offset > self.timeout_ns:
+                self.n_dropped += 1  # too old (or from the future) by the node clock
+                self.drop_offset = offset
+                return
+            last = self.last_stamp[topic]
+            if last is not None and (stamp < last or (stamp - last) - 1e9 * (
+                    now - self.arrival[topic]) > self.timeout_ns):
+                self._clock_jump(topic, stamp - last, now)
+            self.last_stamp[topic] = stamp
+            if value != self.latest[topic]:
+                self.changed[topic] = now
         self.latest[topic] = value
-        self.arrival[topic] = time.monotonic()
+        self.arrival[topic] = now
         if self.lockstep and (stamp < self.k * self.dt_ns
                               or not common.check_grid(self, stamp, self.dt_ns)):
             return  # lock-step: a sample the plant re-sent after a stall, already controlled
@@ -163,46 +214,97 @@ class ControllerNode(Node):
 
     # -- control ---------------------------------------------------------------------------
 
-    def _command(self, acc_s, acc_u, x, field, stale_reason):
-        if stale_reason is None and not common.finite(acc_s, acc_u, x):
-            stale_reason = 'non-finite sensor value'
-        if stale_reason is not None:
-            if not self.fallback:
-                self.get_logger().warning(f'controller: {stale_reason}; falling back to the '
-                                          f'safe current {self.fallback_current:g} A')
-            self.fallback = True
-            self.n_fallback += 1
+    def _command(self, acc_s, acc_u, x, field):
+        """Run the law on a sample; publish its command, or the fallback current."""
+        now = time.monotonic()
+        if not common.finite(acc_s, acc_u, x):
+            if 'value' not in self.health.faults:
+                self.health.set('value', WARN, 'non-finite sensor value', now)
             i_cmd = self.fallback_current
         else:
-            if self.fallback:
-                self.get_logger().info('controller: sensors are back; control law resumed')
-            self.fallback = False
-            self.last_law = time.monotonic()
+            if 'value' in self.health.faults:
+                self.health.clear('value', now)
+            self.last_law = now
             i_cmd = self.stepper.step(acc_s, acc_u, x, field)
+            if self.health.fallback:
+                i_cmd = self.fallback_current
+        self._publish(i_cmd, now)
+
+    def _publish(self, i_cmd, now):
+        if self.health.fallback:
+            self.n_fallback += 1
         self.pub_cmd.publish(self.tpl_cmd.pack(0, float(i_cmd)))
+        self.last_cmd = now
         self.n_cmd += 1
         if self.stats.marked:
             self.n_cmd_run += 1
 
-    def _stale(self):
-        now = time.monotonic()
+    # -- fail-safe (real time) ---------------------------------------------------------------
+
+    def _clock_jump(self, topic, delta_ns, now):
+        self.clock_event = now
+        if delta_ns < 0:  # the old time base's incomplete samples will never complete
+            stamp = self.last_stamp[topic] + delta_ns
+            for key in [k for k in self.pending if k > stamp]:
+                del self.pending[key]
+        if 'clock' not in self.health.faults:
+            way = 'back' if delta_ns < 0 else 'forward'
+            self.health.set('clock', WARN, f'{topic} stamps jumped {way} by '
+                            f'{abs(delta_ns) * 1e-9:.3f} s against their arrival (clock jump)',
+                            now)
+
+    def _stale(self, now):
         stale = [t for t in self.latest
                  if self.latest[t] is None or now - self.arrival[t] > self.sensor_timeout]
         if stale:
-            return f'sensor data stale for more than {self.sensor_timeout:g} s ' \
+            reason = f'sensor data stale for more than {self.sensor_timeout:g} s ' \
                 f'({", ".join(stale)})'
+            if self.n_dropped and all(self.latest[t] is not None for t in stale):
+                reason += f'; {self.n_dropped} samples dropped so far, newest stamped ' \
+                    f'{self.drop_offset * 1e-9:+.3f} s off the node clock'
+            return reason
         if self.trigger == 'sample' and now - self.last_law > self.sensor_timeout:
             return 'no complete sensor sample (same stamp on imu/body, imu/wheel and stroke) ' \
                 f'for {self.sensor_timeout:g} s; use trigger: timer for unsynchronised sensors'
         return None
 
+    def _frozen(self, now):
+        fresh = [t for t in self.latest if now - self.arrival[t] <= self.sensor_timeout]
+        frozen = [t for t in fresh if now - self.changed[t] > self.frozen_timeout]
+        if self.frozen_requires_motion and len(frozen) == len(self.latest):
+            return None  # nothing changes at all: a corner at rest (exact simulated values)
+        if frozen:
+            return f'sensor value frozen for more than {self.frozen_timeout:g} s ' \
+                f'({", ".join(frozen)})'
+        return None
+
+    def _check(self, now):
+        for key, reason in (('stale', self._stale(now)), ('frozen', self._frozen(now))):
+            if reason is not None:
+                self.health.set(key, WARN, reason, now)
+            elif key in self.health.faults:
+                self.health.clear(key, now)
+        if 'clock' in self.health.faults and now - self.clock_event > self.sensor_timeout:
+            self.health.clear('clock', now)
+
+    def _diagnostic_values(self):
+        now = time.monotonic()
+        ages = {t: 'never' if self.latest[t] is None else f'{1e3 * (now - self.arrival[t]):.1f}'
+                for t in self.latest}
+        return (('fallback_current_A', f'{self.fallback_current:g}'),
+                ('commands_in_fallback', self.n_fallback),
+                ('samples_dropped', self.n_dropped)) + tuple(
+            (f'age_ms {t}', ages[t]) for t in self.latest)
+
     def _on_tick(self):
-        reason = self._stale()
-        if reason is not None:
-            self._command(0.0, 0.0, 0.0, 0.0, reason)
-        elif self.trigger == 'timer':
+        now = time.monotonic()
+        self._check(now)
+        self.health.tick(now)
+        if self.trigger == 'timer' and not self.health.has('stale'):
             self._command(self.latest[c.IMU_BODY], self.latest[c.IMU_WHEEL],
-                          self.latest[c.STROKE], self.coil_latest, None)
+                          self.latest[c.STROKE], self.coil_latest)
+        elif self.health.fallback and now - self.last_cmd >= 0.5 * self.watchdog_period:
+            self._publish(self.fallback_current, now)  # no samples come: keep commanding
 
     def _run_samples(self):
         if self.gate is not None and not self.gate.check():
@@ -224,8 +326,7 @@ class ControllerNode(Node):
             else:
                 field = self.coil_latest
             del self.pending[key]
-            self._command(sample[c.IMU_BODY], sample[c.IMU_WHEEL], sample[c.STROKE], field,
-                          None)
+            self._command(sample[c.IMU_BODY], sample[c.IMU_WHEEL], sample[c.STROKE], field)
             self.k += 1
 
     def drain(self, executor):
@@ -237,6 +338,7 @@ class ControllerNode(Node):
         self.stats.data.update(commands=self.n_cmd, commands_after_start=self.n_cmd_run,
                                fallback_steps=self.n_fallback,
                                stale_samples_dropped=self.n_dropped,
+                               fallback_episodes=self.health.episodes,
                                received=dict(self.n_sensor))
         self.stats.write()
 

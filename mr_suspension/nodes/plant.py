@@ -21,6 +21,7 @@ force of the step that ended there.
 import threading
 import time
 
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
@@ -100,6 +101,10 @@ class PlantNode(Node):
             'force once its damper force is in (at the latest with the next step), so the '
             'plant-actuator coupling has the CPU first')
         self.gravity = self.config.car.g
+        # Read-only, from the vehicle set: the controller checks its own gravity against it.
+        self.declare_parameter('gravity', float(self.gravity), ParameterDescriptor(
+            description='Gravity in the IMU specific force [m/s^2] (from the vehicle set; '
+            'read-only, for the start-up agreement check)', read_only=True))
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
                                                  'as JSON here on exit ("" = off)'))
         self.road = rd.from_spec(parse_road(spec), duration=duration, dt=self.config.dt)
