@@ -24,10 +24,10 @@ not wake for every message either: its subscriptions sit on an internal node (``
 not spun by any executor) whose middleware queues (depth 1000, one second at 1 kHz) fill
 between polls; every ``poll_period`` the node takes all queued messages and writes them in
 order of reception. At 1 kHz on seven topics that is about 200 wake-ups a second instead of
-7000, which leaves the CPU to the control loop. On SIGINT/SIGTERM it keeps polling until no
-message arrived for ``drain_idle`` or for at most ``drain_max`` (0.5 s, publishers that keep
-going cannot hold it open), then takes what is still queued and closes the bag (summary and
-metadata written), so no message received before the signal is lost.
+7000, which leaves the CPU to the control loop. On SIGINT/SIGTERM it stops recording: it takes
+every queued message received up to ``drain_grace`` (0.2 s) after the stop, none received later,
+for at most ``drain_max`` (0.5 s), then closes the bag (summary and metadata written), so no
+message received before the signal is lost and publishers that keep going cannot hold it open.
 """
 
 from datetime import datetime
@@ -69,11 +69,11 @@ class RecorderNode(Node):
                                 '("" = all)')
         self.lockstep = common.declare(self, d, 'lockstep', 'Subscribe transient-local, as the '
                                        'lock-step nodes publish (no message lost to discovery)')
-        self.drain_idle = common.declare(self, d, 'drain_idle', 'On shutdown, stop once no '
-                                         'message arrived for this long [s]', 0.01, 10.0)
+        self.drain_grace = common.declare(self, d, 'drain_grace', 'On shutdown, still record '
+                                          'messages received up to this long after it [s]',
+                                          0.0, 10.0)
         self.drain_max = common.declare(self, d, 'drain_max', 'On shutdown, close the bag '
-                                        'after at most this long even if messages keep '
-                                        'coming [s]', 0.0, 10.0)
+                                        'after at most this long [s]', 0.0, 10.0)
         flush_period = common.declare(self, d, 'flush_period', 'Make the bag durable this '
                                       'often, in wall or log time [s] (at most this much data '
                                       'is lost if the process is killed)', 0.01, 10.0)
@@ -110,7 +110,9 @@ class RecorderNode(Node):
         self.sim_ns = None
         # Lock-step stamps are k dt from k = 0: sample 0 seen, gcd and least positive stamp.
         self.grid = [False, 0, 0]
-        self.last_arrival = time.monotonic()
+        self.cutoff = None  # set on shutdown: messages received later are not recorded
+        self.stopped = set()  # sources taken up to the cutoff
+        self.after_stop = 0
         # Subscriptions on a node no executor spins: messages wait in the middleware's queues
         # until _poll takes them (no wake-up per message).
         self.taps = Node(f'{self.get_name()}_taps', context=context,
@@ -141,14 +143,24 @@ class RecorderNode(Node):
         them, so its key is the latest reception time of the topic so far.
         """
         batch = []
-        for source in self.sources:
+        past = self.cutoff is not None and time.time_ns() > self.cutoff
+        for i, source in enumerate(self.sources):
+            if i in self.stopped:
+                continue
             sub = source[0]
             key = 0
             for _ in range(c.DEPTH):  # at most a full queue, so a poll always ends
                 got = sub.handle.take_message(sub.msg_type, True)
                 if got is None:
+                    if past:  # anything still to come was received after the cutoff
+                        self.stopped.add(i)
                     break
-                key = max(key, got[1]['received_timestamp'])
+                received = got[1]['received_timestamp']
+                if self.cutoff is not None and received > self.cutoff:
+                    self.after_stop += 1
+                    self.stopped.add(i)
+                    break
+                key = max(key, received)
                 batch.append((key, len(batch), got[0], source))
         batch.sort()
         with self.lock:
@@ -156,10 +168,8 @@ class RecorderNode(Node):
                 return 0
             for received, _, raw, (_, conn, full, timed, last) in batch:
                 self._write(received, raw, conn, full, timed, last)
-            if batch:
-                if not self.stats.marked:
-                    self.stats.mark()
-                self.last_arrival = time.monotonic()
+            if batch and not self.stats.marked:
+                self.stats.mark()
             self.writer.maybe_flush()  # chunk closed, file flushed: a crash loses no more
         return len(batch)
 
@@ -205,10 +215,15 @@ class RecorderNode(Node):
         return None
 
     def drain(self, executor):
-        """Keep receiving until no message arrived for ``drain_idle`` s, at most ``drain_max``."""
+        """Stop recording: take what was received up to ``drain_grace`` from now, then return.
+
+        Returns once every topic is taken up to that cutoff (a later message, or an empty queue
+        after it), at most ``drain_max`` seconds from now.
+        """
+        self.cutoff = time.time_ns() + int(self.drain_grace * 1e9)  # reception times: system
         end = time.monotonic() + self.drain_max
-        common.spin_until(executor, lambda: time.monotonic() - self.last_arrival > self.drain_idle
-                          or time.monotonic() > end, self.drain_max + 0.1, step=0.02)
+        common.spin_until(executor, lambda: len(self.stopped) == len(self.sources)
+                          or time.monotonic() > end, self.drain_max + 0.1, step=0.01)
 
     def close(self):
         """Take what is still queued, close the bag (summary, metadata) and the statistics file.
@@ -227,6 +242,7 @@ class RecorderNode(Node):
                                f'{sum(self.counts.values())} messages')
         self.stats.data.update(path=str(self.path), counts=self.counts,
                                repeated_dropped=self.repeated, flushes=self.writer.flushes,
+                               after_stop=self.after_stop,
                                niceness=os.getpriority(os.PRIO_PROCESS, 0))
         self.stats.write()
 
