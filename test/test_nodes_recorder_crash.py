@@ -181,3 +181,30 @@ def test_sigint_closes_within_one_second_and_loses_nothing(tmp_path):
     for topic, values in got.items():
         assert values == [float(k) for k in range(len(values))], topic
         assert len(values) >= n_before, (topic, len(values), n_before)  # nothing lost
+
+
+def test_replay_of_unrepaired_bag_names_repair(tmp_path):
+    """A crash image (flushed, never closed) is a one-line error that points at bag repair."""
+    from rosbags.typesys import get_typestore, Stores
+    store = get_typestore(Stores.LATEST)
+    src = tmp_path / 'src'
+    writer = bagtools.BagWriter(src, 'mcap')
+    msgdef, _ = store.generate_msgdef(c.FLOAT64, ros_version=2)
+    cid = writer.add_connection(f'{NS}/{c.CURRENT_COMMAND}', c.FLOAT64, msgdef,
+                                store.hash_rihs01(c.FLOAT64))
+    for k in range(100):
+        writer.write(cid, 10**9 + k * 10**6, store.serialize_cdr(
+            store.types[c.FLOAT64](data=float(k)), c.FLOAT64))
+    writer.flush()
+    bag = tmp_path / 'crashed'
+    bag.mkdir()
+    (bag / 'crashed.mcap').write_bytes((src / 'src.mcap').read_bytes())
+    (bag / 'metadata.yaml').write_text((src / 'metadata.yaml').read_text().replace(
+        'src.mcap', 'crashed.mcap'))
+    writer.close()
+    with ros_context() as (ctx, ex, nodes):
+        with pytest.raises(ValueError, match='mr-suspension bag repair') as err:
+            ReplayNode(context=ctx, parameter_overrides=params(bag=str(bag)))
+    assert '\n' not in str(err.value)
+    bagtools.repair(bag, log=lambda _: None)
+    replayed(bag, [float(k) for k in range(100)])

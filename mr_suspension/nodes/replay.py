@@ -5,14 +5,16 @@ is played into a namespace, e.g. the controller's sensor topics only (``topics: 
 imu/wheel, stroke``). A recorded topic ``/<ns>/<name>`` whose ``<name>`` is a contract topic is
 published on the relative ``<name>`` (so it lands in the replay node's namespace); other topics
 keep their recorded name. Messages go out serialized as stored, at their recorded log times
-scaled by ``speed``. ``/clock`` is published only with ``publish_clock``.
+scaled by ``speed``. ``/clock`` is published only with ``publish_clock``. A bag that cannot
+be read (a recorder killed before closing it) is a one-line error naming
+``mr-suspension bag repair``.
 """
 
 import threading
 import time
 
 from rclpy.node import Node
-from rosbags.rosbag2 import Reader
+from rosbags.rosbag2 import Reader, ReaderError
 
 from mr_suspension.nodes import common, contract as c
 from mr_suspension.nodes.recorder import message_class
@@ -52,7 +54,12 @@ class ReplayNode(Node):
         if not bag:
             raise ValueError('replay: parameter bag is required')
         self.reader = Reader(bag)
-        self.reader.open()
+        try:
+            self.reader.open()
+        except ReaderError as exc:
+            raise ValueError(f'replay: cannot read {bag}: {exc} (a bag whose recorder was '
+                             f'killed is made readable by: mr-suspension bag repair {bag})') \
+                from None
         wanted = {t.strip() for t in topics.split(',') if t.strip()}
         conns = []
         self.pubs = {}
