@@ -134,13 +134,20 @@ def run_comparison(cfgs, road, out, stem):
     return metrics
 
 
+def _label(name):
+    """Label of a controller set in file names: the stem of a YAML path, else the name."""
+    path = Path(str(name))
+    return path.stem if path.suffix in ('.yaml', '.yml', '.json') else str(name)
+
+
 def cmd_simulate(args):
     """Simulate one corner (and a passive reference) and write CSV, plots and metrics."""
     out = output_dir(args.out)
     cfg = corner_from_args(args)
-    cfgs = {args.controller: cfg}
+    cfgs = {_label(args.controller): cfg}
     if args.reference and args.reference != args.controller:
-        cfgs[args.reference] = cfg.replace(controller=config.load_controller(args.reference))
+        cfgs[_label(args.reference)] = cfg.replace(
+            controller=config.load_controller(args.reference))
     road = _road_from_args(args, cfg.dt)
     t0 = time.perf_counter()
     metrics = run_comparison(cfgs, road, out, args.road)
@@ -267,8 +274,9 @@ def _expected_errors():
     types = [ValueError, OSError, yaml.YAMLError, MemoryError]
     try:  # unreadable bags (the readers' own error types)
         from mcap.exceptions import McapError
+        from rosbags.highlevel import AnyReaderError
         from rosbags.rosbag2 import ReaderError
-        types += [McapError, ReaderError]
+        types += [McapError, AnyReaderError, ReaderError]
     except ImportError:
         pass
     return tuple(types)

@@ -36,6 +36,9 @@ def _add_load_options(p):
 
 
 def _load_options(args):
+    from mr_suspension.core.validation import check_range
+    check_range('diagnose', '--velocity-cutoff', args.velocity_cutoff, 0.01, 1.0e4, 'Hz',
+                'velocity low-pass cut-off')
     return dataio.LoadOptions(columns=dataio.parse_mapping(args.columns, '--columns'),
                               units=dataio.parse_mapping(args.units, '--units'),
                               preset=args.preset, velocity_cutoff=args.velocity_cutoff,
