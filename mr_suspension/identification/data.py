@@ -40,6 +40,9 @@ UNITS = {
 }
 MIN_SAMPLES = 200
 MIN_DURATION = 1.0
+SET_CHANNELS = ('current_command', 'voltage_command', 'current', 'temperature')
+NO_MOTION = 1e-4         # [m] 1-99 % displacement span below which nothing moved
+NO_MOTION_V = 1e-4       # [m/s] velocity RMS below which nothing moved
 VRTHS_TXT = re.compile(r'(\d+(?:x\d+)?)mm(\d+(?:x\d+)?)Hz(\d+(?:x\d+)?)A', re.IGNORECASE)
 VRTHS_MAT_CURRENTS = (0.2, 0.4, 0.6, 0.8, 1.0)
 
@@ -50,7 +53,13 @@ class DataError(ValueError):
 
 @dataclass(frozen=True)
 class Record:
-    """One rig record in SI units on a uniform time base (see the module docstring)."""
+    """One rig record in SI units on a uniform time base (see the module docstring).
+
+    ``mask`` marks usable samples (False: dropout, clipping, spike; those are linearly
+    filled so that model states can run through them, never scored). ``findings`` are the
+    sensor findings (``sensors``). ``stamps`` are the input rows' own times relative to the
+    first and ``stamp_index`` their grid samples (None when the rows were resampled).
+    """
 
     name: str
     time: np.ndarray
@@ -64,6 +73,18 @@ class Record:
     temperature: np.ndarray = None
     velocity_source: str = 'measured'
     meta: dict = field(default_factory=dict)
+    mask: np.ndarray = None
+    findings: tuple = ()
+    stamps: np.ndarray = None
+    stamp_index: np.ndarray = None
+
+    def __post_init__(self):
+        """Fill the defaults: ``mask`` all True, ``stamps`` = ``time`` (one row per sample)."""
+        if self.mask is None:
+            object.__setattr__(self, 'mask', np.ones(self.time.shape[0], dtype=bool))
+        if self.stamps is None:
+            object.__setattr__(self, 'stamps', self.time)
+            object.__setattr__(self, 'stamp_index', np.arange(self.time.shape[0]))
 
     @property
     def n(self):
@@ -78,7 +99,10 @@ class Record:
 
 @dataclass(frozen=True)
 class LoadOptions:
-    """How to read files: column names (canonical -> file column), units, preset, filter."""
+    """How to read files: column names (canonical -> file column), units, preset, filter.
+
+    ``need_force=False`` (``predict``) ignores any force column and skips the force checks.
+    """
 
     columns: dict = field(default_factory=dict)
     units: dict = field(default_factory=dict)
@@ -86,6 +110,7 @@ class LoadOptions:
     velocity_cutoff: float = 25.0
     derive_velocity: bool = False
     use_measured_current: bool = True
+    need_force: bool = True
 
 
 def parse_mapping(items, what):
@@ -127,28 +152,73 @@ def _unit_factor(name, unit):
     return table[key]
 
 
-def _fix_nan(name, arr, label):
-    bad = ~np.isfinite(arr)
-    if not bad.any():
-        return arr
-    frac = bad.mean()
-    if frac > 0.01 or bad.all():
-        raise DataError(f'{label}: {bad.sum()} of {arr.size} {name} values are NaN/inf '
-                        f'({100 * frac:.1f} %); clean the record (at most 1 % can be patched)')
-    idx = np.arange(arr.size)
-    warnings.warn(f'{label}: {bad.sum()} NaN/inf {name} value(s) linearly interpolated')
-    out = arr.copy()
-    out[bad] = np.interp(idx[bad], idx[~bad], arr[~bad])
+def _check_nan_budget(name, label, fnd, n):
+    """Raise ``DataError`` when a channel's NaN/inf values are too many or too scattered."""
+    if fnd is None or not fnd.get('nan_samples'):
+        return
+    bad, nruns = fnd['nan_samples'], fnd['nan_runs']
+    if bad >= n or bad > 0.25 * n or (bad > 0.01 * n and nruns > max(10, 0.001 * n)):
+        raise DataError(f'{label}: {bad} of {n} {name} values are NaN/inf ({100 * bad / n:.1f} '
+                        f'%, {nruns} runs); clean the record (scattered NaN above 1 % or any '
+                        'above 25 % cannot be masked)')
+
+
+def _time_units(name, t, opts):
+    """Median step of ``t`` in s: a step >= 0.05 s is ms read as s (converted) or an error."""
+    step = float(np.median(np.diff(t)))
+    if step < 0.05:
+        return t
+    if 'time' in opts.units or step > 50.0:
+        raise DataError(f'{name}: median time step {step:.3g} s ({1 / step:.3g} Hz) is too slow '
+                        'for a damper rig record; if time is in ms pass --units time=ms')
+    warnings.warn(f'{name}: median time step {step:.3g} would mean {1 / step:.3g} Hz sampling, '
+                  f'too slow for a damper rig; time taken as ms ({1e3 / step:.4g} Hz). Pass '
+                  '--units time=ms to confirm, or --units time=s to refuse')
+    return t * 1e-3
+
+
+def _on_grid(base, y):
+    """Input rows ``y`` placed on the time base (gaps/resampling filled linearly)."""
+    if base.index is None:
+        return None
+    if base.index.size == base.time.size:
+        return y
+    out = np.interp(np.arange(base.time.size), base.index, y)
+    out[base.index] = y
     return out
+
+
+def _consistent_holds(cols, t, opts):
+    """Mark samples where a held displacement or velocity agrees with the other sensor.
+
+    A displacement hold is genuine where the measured velocity is ~0; a velocity hold where
+    the velocity derived from displacement has the held value (constant-speed ramps).
+    """
+    x, v = cols['displacement'], cols['velocity']
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
+        return {}
+    dt = float(np.median(np.diff(t)))
+    vg = np.gradient(x, dt)
+    scale = float(np.sqrt(np.mean(derive_velocity(x, dt, opts.velocity_cutoff) ** 2)))
+    return {'displacement': np.abs(v) <= 0.05 * scale,
+            'velocity': np.abs(vg - v) <= 0.1 * scale}
 
 
 def build_record(name, cols, opts=None, meta=None):
     """Check raw SI columns (dict canonical -> array) and return a ``Record``.
 
-    Raises ``DataError`` for missing columns, non-monotonic time, too short records, too many
-    NaN and implausible units; warns for patched NaN, resampling and suspicious scales.
+    Raises ``DataError`` for missing columns, non-monotonic or too slow time, too short records,
+    too many NaN/spikes, no motion and implausible units; warns for every sensor finding (see
+    ``sensors``), time read as ms and suspicious scales. Masked samples are linearly filled.
     """
+    from mr_suspension.identification import sensors
+
     opts = opts or LoadOptions()
+    cols = dict(cols)
+    if not opts.need_force:
+        cols.pop('force', None)
+        if 'time' in cols:
+            cols['force'] = np.zeros(np.asarray(cols['time']).size)
     missing = [c for c in ('time', 'displacement', 'force') if c not in cols]
     if missing:
         raise DataError(f'{name}: missing column(s) {missing}; found {sorted(cols)}. Map names '
@@ -171,42 +241,104 @@ def build_record(name, cols, opts=None, meta=None):
         k = int(np.argmax(dts <= 0))
         raise DataError(f'{name}: time is not strictly increasing (row {k + 1}: {t[k]} -> '
                         f'{t[k + 1]}); sort or split the record')
-    dt = float(np.median(dts))
+    t = _time_units(name, t, opts)
     if t[-1] - t[0] < MIN_DURATION:
         raise DataError(f'{name}: too short ({t[-1] - t[0]:.3f} s); need >= {MIN_DURATION} s')
-    for k in list(cols):
-        if k != 'time':
-            cols[k] = _fix_nan(k, cols[k], name)
-    if np.max(np.abs(dts - dt)) > 0.1 * dt:
-        warnings.warn(f'{name}: irregular sampling (dt {dts.min():.3g}..{dts.max():.3g} s); '
-                      f'resampled to a uniform {dt:.3g} s grid')
-        tu = t[0] + dt * np.arange(int((t[-1] - t[0]) / dt) + 1)
+    findings = []
+    row_mask = np.ones(n, dtype=bool)
+    measured_v = 'velocity' in cols and not opts.derive_velocity
+    checked = [k for k in ('force', 'displacement', 'velocity', 'current', 'current_command',
+                           'voltage_command', 'temperature') if k in cols]
+    if not opts.need_force:
+        checked.remove('force')
+    still = _consistent_holds(cols, t, opts) if measured_v else {}
+    for k in checked:
+        y = cols[k]
+        ok = np.isfinite(y)
+        if not ok.any():
+            raise DataError(f'{name}: every {k} value is NaN/inf')
+        good = ok.copy()
+        fnd = fs = fc = None
+        if k in SET_CHANNELS:
+            # set values (and a coil current following them) legitimately hold: NaN runs only
+            _, fnd = sensors.dropouts(k, y, frozen=False)
+        else:
+            ms, fs = sensors.spikes(k, sensors.fill(y, ok))
+            ms |= ~ok
+            if fs is not None and fs['fraction'] > 0.01:
+                raise DataError(f'{name}: {fs["detail"].replace("; masked", "")}: '
+                                f'{100 * fs["fraction"]:.1f} % of the samples; check the sensor '
+                                'and its units (at most 1 % can be excluded)')
+            good, fnd = sensors.dropouts(k, y, still.get(k), exclude=~ms)
+            mc, fc = sensors.clipping(k, np.where(ms, y, np.nan), still.get(k))
+            good &= ms & mc
+        _check_nan_budget(k, name, fnd, n)
+        cols[k] = sensors.fill(np.where(good, y, 0.0), good)
+        row_mask &= good
+        findings.extend(f for f in (fnd, fs, fc) if f is not None)
+    base, ft = sensors.uniform_time(t)
+    gap_mask, fg = sensors.missing_rows(base)
+    findings.extend(f for f in (ft, fg) if f is not None)
+    stamps = t - t[0]
+    if base.resampled:
+        tg = base.time
         for k in list(cols):
             if k != 'time':
-                cols[k] = np.interp(tu, t, cols[k])
-        t = tu
+                cols[k] = np.interp(tg, stamps, cols[k])
+        bad_rows = np.flatnonzero(~row_mask)
+        mask = np.ones(tg.size, dtype=bool)
+        if bad_rows.size:
+            j = np.searchsorted(stamps, tg)
+            bad = np.zeros(n + 1, dtype=bool)
+            bad[bad_rows] = True
+            mask = ~(bad[np.clip(j, 0, n - 1)] | bad[np.clip(j - 1, 0, n - 1)])
+    else:
+        for k in list(cols):
+            if k != 'time':
+                cols[k] = _on_grid(base, cols[k])
+        mask = gap_mask.copy()
+        mask[base.index] = row_mask
+    for fnd in findings:
+        warnings.warn(f'{name}: {fnd["finding"]}: {fnd["detail"]}')
+    if mask.mean() < 0.5:
+        raise DataError(f'{name}: only {100 * mask.mean():.1f} % of the samples are usable after '
+                        'masking dropouts, clipping and spikes; fix the record')
+    dt = base.dt
     x = cols['displacement']
     f = cols['force']
-    if np.max(np.abs(x)) > 0.5:
-        raise DataError(f'{name}: displacement reaches {np.max(np.abs(x)):.3g} m, implausible '
+    xm = x[mask]
+    if np.max(np.abs(xm)) > 0.5:
+        raise DataError(f'{name}: displacement reaches {np.max(np.abs(xm)):.3g} m, implausible '
                         'for a damper; if it is in mm pass --units displacement=mm')
-    if np.std(f) < 1e-9:
-        raise DataError(f'{name}: force is constant; nothing to identify')
-    if np.max(np.abs(f)) < 20.0:
-        warnings.warn(f'{name}: peak force only {np.max(np.abs(f)):.3g} N; if the file is in '
-                      'kN pass --units force=kN (parameters would be 1000x too small)')
+    lo, hi = np.percentile(xm, [1, 99])
+    if hi - lo < NO_MOTION:
+        raise DataError(f'{name}: no motion: displacement spans {1e3 * (hi - lo):.3g} mm (1-99 % '
+                        f'range, need >= {1e3 * NO_MOTION:g} mm); a damper force needs stroke '
+                        'velocity: check the displacement column and its units')
+    if opts.need_force:
+        if np.std(f[mask]) < 1e-9:
+            raise DataError(f'{name}: force is constant; nothing to identify')
+        if np.max(np.abs(f[mask])) < 20.0:
+            warnings.warn(f'{name}: peak force only {np.max(np.abs(f[mask])):.3g} N; if the file '
+                          'is in kN pass --units force=kN (parameters would be 1000x too small)')
     vsrc = 'measured'
-    if 'velocity' in cols and not opts.derive_velocity:
-        v = cols['velocity']
-        vd = derive_velocity(x, dt, opts.velocity_cutoff)
-        rv, rd = np.sqrt(np.mean(v ** 2)), np.sqrt(np.mean(vd ** 2))
-        if rd > 0 and rv > 0 and not 0.2 < rv / rd < 5.0:
-            raise DataError(f'{name}: velocity RMS {rv:.3g} m/s disagrees with d(displacement)/dt '
-                            f'RMS {rd:.3g} m/s (ratio {rv / rd:.3g}); check --units '
-                            'velocity=... / displacement=...')
+    derived = f'derived (zero-phase Butterworth 2nd order {opts.velocity_cutoff:g} Hz)'
+    if measured_v:
+        try:
+            v, fv = sensors.velocity_check(x, cols['velocity'], dt, opts.velocity_cutoff, mask)
+        except DataError as exc:
+            raise DataError(f'{name}: {exc}') from None
+        if fv is not None:
+            findings.append(fv)
+            warnings.warn(f'{name}: {fv["finding"]}: {fv["detail"]}')
+            vsrc = derived + '; measured velocity replaced'
     else:
         v = derive_velocity(x, dt, opts.velocity_cutoff)
-        vsrc = f'derived (zero-phase Butterworth 2nd order {opts.velocity_cutoff:g} Hz)'
+        vsrc = derived
+    vrms = float(np.sqrt(np.mean(v[mask] ** 2)))
+    if vrms < NO_MOTION_V:
+        raise DataError(f'{name}: no motion: velocity RMS {1e3 * vrms:.3g} mm/s (need >= '
+                        f'{1e3 * NO_MOTION_V:g} mm/s); nothing to identify')
     command = None
     if 'current_command' in cols:
         command = cols['current_command']
@@ -224,9 +356,10 @@ def build_record(name, cols, opts=None, meta=None):
     if np.max(np.abs(i_in)) > 10.0:
         warnings.warn(f'{name}: current reaches {np.max(np.abs(i_in)):.3g} A; if it is in mA '
                       'pass --units current_command=mA')
-    return Record(name=name, time=t - t[0], displacement=x, velocity=v, force=f, i_in=i_in,
+    return Record(name=name, time=base.time, displacement=x, velocity=v, force=f, i_in=i_in,
                   input_kind=kind, dt=dt, command=command, temperature=cols.get('temperature'),
-                  velocity_source=vsrc, meta=dict(meta or {}))
+                  velocity_source=vsrc, meta=dict(meta or {}), mask=mask,
+                  findings=tuple(findings), stamps=stamps, stamp_index=base.index)
 
 
 def _apply_units(cols, units, defaults=None):
@@ -470,7 +603,11 @@ def load_records(paths, opts=None):
 
 
 def decimate(rec, q):
-    """Every ``q``-th sample of a record (signals are smooth at the rig rates; no filter)."""
+    """Every ``q``-th sample of a record (signals are smooth at the rig rates; no filter).
+
+    The mask keeps the kept samples' own validity; only the input rows that land on a kept
+    sample stay in ``stamps`` (all of them when the record was resampled).
+    """
     if q <= 1:
         return rec
     sl = slice(None, None, q)
@@ -478,9 +615,22 @@ def decimate(rec, q):
     def cut(a):
         return None if a is None else a[sl]
 
+    stamps, index = rec.stamps, rec.stamp_index
+    if index is not None:
+        keep = index % q == 0
+        stamps, index = stamps[keep], index[keep] // q
     return replace(rec, time=rec.time[sl], displacement=rec.displacement[sl],
                    velocity=rec.velocity[sl], force=rec.force[sl], i_in=rec.i_in[sl],
-                   command=cut(rec.command), temperature=cut(rec.temperature), dt=rec.dt * q)
+                   command=cut(rec.command), temperature=cut(rec.temperature), dt=rec.dt * q,
+                   mask=cut(rec.mask), stamps=stamps, stamp_index=index)
+
+
+def at_stamps(rec, y):
+    """``(stamps, y at the stamps)``: a signal on the record's grid at the input's own rows."""
+    y = np.asarray(y, dtype=float)
+    if rec.stamp_index is not None:
+        return rec.stamps, y[rec.stamp_index]
+    return rec.stamps, np.interp(rec.stamps, rec.time, y)
 
 
 def with_force(rec, force):

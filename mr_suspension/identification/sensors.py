@@ -1,0 +1,431 @@
+"""Sensor checks on rig records: time base, dropouts, clipping, spikes, velocity consistency.
+
+Pure functions on numpy arrays. Each returns ``(mask or corrected array, finding or None)``;
+a finding is a dict ``{'finding': NAME, 'location': 'sensor', 'channel': ..., 'action':
+'corrected' | 'excluded' | 'warned', 'detail': one sentence with numbers, ...numbers}``.
+A mask is a bool array, True = usable sample.
+
+* ``uniform_time``: stamps rounded to a quantum (dt taking a few values, multiples of ``q``)
+  are put back on the straight line ``t_k = t0 + k dt`` (least squares over the sample index,
+  so missing rows count as steps of 2, 3 ... samples); truly irregular stamps are resampled.
+* ``missing_rows``: the grid samples no input row fell on (``dropout``).
+* ``clipping`` / ``dropouts``: runs of one repeated value longer than the channel's repeat
+  statistics allow *and* not explained by its dynamics (a quadratic through the neighbours
+  leaves the held value by more than the channel's resolution): at the channel's max or min
+  that is a clipped sensor, elsewhere a frozen one. NaN/inf runs are dropouts too.
+* ``spikes``: non-physical magnitudes and isolated samples far from a running median.
+* ``velocity_check``: a measured velocity against the zero-phase derivative of displacement
+  (gain, fractional time shift by normalised cross-correlation with parabolic peak
+  interpolation, excess high-frequency noise).
+"""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from scipy import ndimage, signal
+
+# Magnitudes no rig sensor reports in SI units (a value beyond is a glitch, not a measurement).
+LIMITS = {'force': 1e7, 'displacement': 100.0, 'velocity': 1e3, 'current': 1e3,
+          'current_command': 1e3, 'voltage_command': 1e4, 'temperature': 1e4}
+FALSE_RUNS = 1e-3        # expected number of chance runs tolerated per channel
+MIN_RUN = 5              # shortest repeated run that can be a fault
+SPIKE_SIGMAS = 10.0      # a spike leaves the running median by this many robust sigmas ...
+SPIKE_SPREAD = 0.5       # ... and leaves the 0.5-99.5 % range by this fraction of it
+GAIN_TOL = 0.05          # measured / derived velocity gain tolerance
+SHIFT_TOL = 0.3          # velocity time shift [samples] that is reported and corrected
+NOISE_TOL = 0.05         # velocity HF noise / velocity RMS that is reported and corrected
+
+
+def finding(name, channel, action, detail, **numbers):
+    """Build a finding dict (numbers are converted to plain floats/ints)."""
+    out = {'finding': name, 'location': 'sensor', 'channel': channel, 'action': action,
+           'detail': detail}
+    for k, v in numbers.items():
+        out[k] = int(v) if isinstance(v, (bool, np.bool_, int, np.integer)) else float(v)
+    return out
+
+
+def runs(flags):
+    """Start indices and lengths of the runs of True in a bool array."""
+    d = np.diff(np.concatenate(([0], np.asarray(flags, dtype=np.int8), [0])))
+    start = np.flatnonzero(d == 1)
+    return start, np.flatnonzero(d == -1) - start
+
+
+def fill(x, mask):
+    """``x`` with the samples where ``mask`` is False linearly interpolated from the others."""
+    if mask.all():
+        return x
+    idx = np.flatnonzero(mask)
+    out = x.copy()
+    bad = np.flatnonzero(~mask)
+    out[bad] = np.interp(bad, idx, x[idx])
+    return out
+
+
+@dataclass(frozen=True)
+class TimeBase:
+    """A uniform time base: ``time`` (from 0, step ``dt``) and where the input rows sit on it.
+
+    ``index[k]`` is the grid sample of input row ``k`` (None when the rows were resampled).
+    """
+
+    time: np.ndarray
+    dt: float
+    index: np.ndarray = None
+
+    @property
+    def resampled(self):
+        """True when the rows had to be interpolated onto the grid."""
+        return self.index is None
+
+
+def _quantum(d, slop):
+    """Stamp quantum of step values ``d``: the spacing of their few distinct values (or 0)."""
+    vals = np.unique(d)
+    if vals.size > 1:
+        cut = np.flatnonzero(np.diff(vals) > 4 * slop)
+        centres = [g.mean() for g in np.split(vals, cut + 1)]
+    else:
+        centres = [vals[0]]
+    if len(centres) == 1:
+        return 0.0, 1
+    if len(centres) > 12:
+        return None, len(centres)
+    q = float(np.min(np.diff(centres)))
+    if np.max(np.abs(np.array(centres) / q - np.round(np.array(centres) / q))) > 0.05:
+        return None, len(centres)
+    return q, len(centres)
+
+
+def uniform_time(t):
+    """Recover a uniform time base from stamps ``t`` (finite, strictly increasing).
+
+    Returns ``(TimeBase, finding)``. Clean stamps give ``(raw stamps - t0, median dt)`` and no
+    finding; rounded or jittery stamps the least-squares line ``k dt`` (``stamp_rounding`` /
+    ``stamp_jitter``, corrected); missing rows leave grid samples without a row (see
+    ``missing_rows``); irregular stamps a resampled grid (``irregular_sampling``).
+    """
+    t = np.asarray(t, dtype=float)
+    rel = t - t[0]
+    dts = np.diff(rel)
+    d0 = float(np.median(dts))
+    m = np.maximum(np.rint(dts / d0), 1.0)
+    if np.any(m == 1):
+        d1 = float(np.mean(dts[m == 1]))
+        m = np.maximum(np.rint(dts / d1), 1.0)
+    k = np.concatenate(([0.0], np.cumsum(m)))
+    kc = k - k.mean()
+    dt = float(np.dot(kc, rel - rel.mean()) / np.dot(kc, kc))
+    a = float(rel.mean() - dt * k.mean())
+    res = rel - (a + dt * k)
+    rmax = float(np.max(np.abs(res)))
+    slop = 8 * np.finfo(float).eps * max(abs(t[0]), abs(t[-1])) + 1e-15
+    gaps = bool(np.any(m > 1))
+    index = k.astype(np.int64)
+    if rmax <= 1e-3 * dt + slop:
+        if not gaps:
+            return TimeBase(rel, d0, index), None
+        return TimeBase(dt * np.arange(index[-1] + 1), dt, index), None
+    q, nvals = _quantum(dts[m == 1], slop)
+    grid = dt * np.arange(index[-1] + 1)
+    if q is not None and q < dt and rmax <= q + 4 * slop:
+        return TimeBase(grid, dt, index), finding(
+            'stamp_rounding', 'time', 'corrected',
+            f'time stamps are rounded to {q:.3g} s (steps take {nvals} values, residuals from '
+            f'a uniform {1 / dt:.6g} Hz line within {rmax:.3g} s); the uniform grid '
+            f'dt = {dt:.9g} s is used, no resampling', quantum=q, dt=dt, max_residual=rmax)
+    if rmax <= 0.1 * dt:
+        return TimeBase(grid, dt, index), finding(
+            'stamp_jitter', 'time', 'corrected',
+            f'time stamps jitter by up to {rmax:.3g} s ({100 * rmax / dt:.1f} % of the '
+            f'{dt:.6g} s step) around a uniform line; the uniform grid is used',
+            dt=dt, max_residual=rmax)
+    grid = d0 * np.arange(int(rel[-1] / d0 + 1e-9) + 1)
+    return TimeBase(grid, d0, None), finding(
+        'irregular_sampling', 'time', 'corrected',
+        f'irregular sampling (steps {dts.min():.3g}..{dts.max():.3g} s, {rmax:.3g} s from any '
+        f'uniform line); resampled to a uniform {d0:.3g} s grid by linear interpolation',
+        dt=d0, step_min=float(dts.min()), step_max=float(dts.max()))
+
+
+def missing_rows(base):
+    """Mask the grid samples without an input row; ``dropout`` finding if there are any."""
+    n = base.time.size
+    mask = np.ones(n, dtype=bool)
+    if base.index is None or base.index.size == n:
+        return mask, None
+    mask[:] = False
+    mask[base.index] = True
+    start, length = runs(~mask)
+    miss = int(n - base.index.size)
+    j = int(np.argmax(length))
+    return mask, finding(
+        'dropout', 'all', 'excluded',
+        f'{miss} missing row(s) in {start.size} gap(s) (longest {length[j]} samples at '
+        f't = {base.time[start[j]]:.4g} s); put on the uniform grid, masked',
+        samples=miss, runs=start.size, longest=int(length[j]))
+
+
+def _resolution(x):
+    """Smallest step of ``x`` above float noise (its quantisation, or a tiny number)."""
+    d = np.abs(np.diff(x))
+    ok = np.isfinite(d)
+    floor = 1e-9 * float(np.max(np.abs(x[np.isfinite(x)]), initial=0.0))
+    d = d[ok & (d > floor)]
+    return float(d.min()) if d.size else 0.0
+
+
+def _held_runs(x, consistent=None):
+    """Repeated-value runs of ``x`` not explained by chance, resolution or dynamics.
+
+    Returns a list of ``(start, length, value)``. ``consistent`` (bool array, optional) marks
+    samples where another sensor agrees with a hold (e.g. the velocity is ~0 while the
+    displacement holds); a run that is mostly consistent is genuine. Otherwise a run is a
+    fault when a quadratic through its neighbours leaves the held value by more than 1.5
+    resolution steps plus 3 noise sigmas (from the second differences).
+    """
+    n = x.size
+    eq = x[1:] == x[:-1]
+    p = float(eq.mean()) if n > 1 else 0.0
+    if p == 0.0:
+        return []
+    start, length = runs(eq)
+    length = length + 1
+    lmin = MIN_RUN
+    if p < 1.0:
+        # chance runs if samples repeat independently with probability p ...
+        lmin = max(lmin, int(math.ceil(1 + math.log(FALSE_RUNS / n) / math.log(p))))
+        # ... and if runs extend geometrically as the channel's short runs do (quantised,
+        # slowly varying signals cluster their repeats)
+        cnt = [int(np.sum(length >= j)) for j in (2, 3, 4)]
+        if cnt[0] >= 20:
+            rho = max(cnt[1] / cnt[0], cnt[2] / max(cnt[1], 1), p)
+            if 0.0 < rho < 1.0:
+                lmin = max(lmin, int(math.ceil(2 + math.log(FALSE_RUNS / cnt[0])
+                                               / math.log(rho))))
+    keep = length >= lmin
+    start, length = start[keep], length[keep]
+    if start.size == 0:
+        return []
+    res = _resolution(x)
+    scale = float(np.nanpercentile(np.abs(x), 99))
+    d2 = np.diff(x, 2)
+    d2 = d2[np.isfinite(d2)]
+    noise = 1.4826 * float(np.median(np.abs(d2))) / math.sqrt(6.0) if d2.size else 0.0
+    tol = 1.5 * res + 3.0 * noise + 1e-9 * scale
+    out = []
+    for s, ln in zip(start[:10000], length[:10000]):
+        e = s + ln
+        val = x[s]
+        if consistent is not None and np.mean(consistent[s:e]) >= 0.8:
+            continue
+        w = int(min(max(ln, 10), 200))
+        ib = np.arange(max(0, s - w), s)
+        ia = np.arange(e, min(n, e + w))
+        idx = np.concatenate((ib, ia))
+        idx = idx[np.isfinite(x[idx])]
+        if idx.size < 4:
+            out.append((int(s), int(ln), float(val)))
+            continue
+        deg = 2 if ib.size >= 2 and ia.size >= 2 else 1
+        c = (s + e) / 2.0
+        coef = np.polyfit((idx - c) / ln, x[idx], deg)
+        path = np.polyval(coef, (np.arange(s, e) - c) / ln)
+        if np.max(np.abs(path - val)) > tol:
+            out.append((int(s), int(ln), float(val)))
+    return out
+
+
+def clipping(name, x, consistent=None):
+    """Mask samples at a clipped extreme (max or min held longer than noise and dynamics allow).
+
+    Every sample at a clipped rail is masked, not only the long runs: the true value there is
+    unknown (at or beyond the rail). Returns ``(mask, finding or None)``.
+    """
+    x = np.asarray(x, dtype=float)
+    mask = np.ones(x.size, dtype=bool)
+    ok = np.isfinite(x)
+    if not ok.any():
+        return mask, None
+    hi, lo = float(np.max(x[ok])), float(np.min(x[ok]))
+    held = _held_runs(x, consistent)
+    rails = sorted({v for _, _, v in held if v in (hi, lo)})
+    if not rails:
+        return mask, None
+    for v in rails:
+        mask &= x != v
+    longest = max(ln for _, ln, v in held if v in rails)
+    nbad = int((~mask).sum())
+    where = ' and '.join(('max' if v == hi else 'min') + f' {v:.6g}' for v in rails)
+    return mask, finding(
+        'clipping', name, 'excluded',
+        f'{name} clipped at its {where}: {nbad} samples ({100 * nbad / x.size:.2f} %) at the '
+        f'rail, longest run {longest} samples; masked', samples=nbad, longest=longest,
+        fraction=nbad / x.size, rail_high=hi if hi in rails else math.nan,
+        rail_low=lo if lo in rails else math.nan)
+
+
+def dropouts(name, x, consistent=None, frozen=True, exclude=None):
+    """Mask NaN/inf runs and (``frozen=True``) frozen runs: one value held away from the extremes.
+
+    ``exclude`` marks samples already masked by another check (ignored here, not counted).
+    Returns ``(mask, finding or None)``; the finding counts both kinds.
+    """
+    x = np.asarray(x, dtype=float)
+    bad = ~np.isfinite(x)
+    nan_start, nan_len = runs(bad)
+    mask = ~bad
+    held = []
+    xs = x if exclude is None else np.where(exclude, np.nan, x)
+    ok = np.isfinite(xs)
+    if frozen and ok.any():
+        hi, lo = float(np.max(xs[ok])), float(np.min(xs[ok]))
+        held = [(s, ln) for s, ln, v in _held_runs(xs, consistent) if v not in (hi, lo)]
+    frozen = held
+    for s, ln in frozen:
+        mask[s:s + ln] = False
+    if not bad.any() and not frozen:
+        return mask, None
+    nf = sum(ln for _, ln in frozen)
+    longest = max([ln for _, ln in frozen] + list(nan_len))
+    parts = []
+    if bad.any():
+        parts.append(f'{int(bad.sum())} NaN/inf sample(s) in {nan_start.size} run(s)')
+    if frozen:
+        parts.append(f'{nf} frozen sample(s) in {len(frozen)} run(s) of one repeated value')
+    return mask, finding(
+        'dropout', name, 'excluded',
+        f'{name}: ' + ' and '.join(parts) + f' (longest {longest}); masked, linearly '
+        'interpolated only to keep the model states running', samples=int((~mask).sum()),
+        nan_samples=int(bad.sum()), nan_runs=nan_start.size, frozen_samples=nf,
+        frozen_runs=len(frozen), longest=longest, fraction=float((~mask).mean()))
+
+
+def spikes(name, x, limit=None):
+    """Mask non-physical values (``|x| > limit``) and isolated samples far from the median.
+
+    ``x`` must be finite (fill dropouts first). An outlier leaves the 5-sample running median
+    by more than ``SPIKE_SIGMAS`` robust sigmas and lies outside the channel's envelope
+    (0.5-99.5 % range widened by ``SPIKE_SPREAD`` of it on each side): a glitch, not a fast
+    but genuine excursion. Returns ``(mask, finding or None)``.
+    """
+    x = np.asarray(x, dtype=float)
+    if limit is None:
+        limit = LIMITS.get(name, math.inf)
+    wild = np.abs(x) > limit
+    xs = fill(x, ~wild) if wild.any() and not wild.all() else x
+    r = xs - ndimage.median_filter(xs, size=5, mode='nearest')
+    sigma = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    lo, hi = np.percentile(xs, [0.5, 99.5])
+    thr = max(SPIKE_SIGMAS * sigma, _resolution(xs))
+    wide = SPIKE_SPREAD * (hi - lo)
+    outl = (np.abs(r) > thr) & ((xs > hi + wide) | (xs < lo - wide)) & ~wild
+    mask = ~(wild | outl)
+    if mask.all():
+        return mask, None
+    nw, no = int(wild.sum()), int(outl.sum())
+    parts = []
+    if nw:
+        parts.append(f'{nw} non-physical value(s) (|{name}| > {limit:.3g}, up to '
+                     f'{float(np.max(np.abs(x[wild]))):.3g})')
+    if no:
+        parts.append(f'{no} isolated outlier(s) beyond {thr:.3g} from the running median')
+    return mask, finding('spike', name, 'excluded', f'{name}: ' + ' and '.join(parts)
+                         + '; masked', samples=nw + no, nonphysical=nw, outliers=no,
+                         threshold=thr, fraction=(nw + no) / x.size)
+
+
+def _lowpass(y, dt, cutoff):
+    fs = 1.0 / dt
+    if cutoff is None or cutoff >= 0.45 * fs or y.size <= 30:
+        return y
+    b, a = signal.butter(2, cutoff / (0.5 * fs))
+    return signal.filtfilt(b, a, y, padlen=min(3 * max(len(a), len(b)), y.size - 1))
+
+
+def _ncc_shift(a, b, w, lmax, m):
+    """Return the lag of ``a`` behind ``b`` [samples] and the peak correlation.
+
+    Normalised cross-correlation over the samples ``w`` at integer lags, parabolic
+    interpolation of its peak.
+    """
+    n = a.size
+    ww = w[m:n - m]
+    bb = np.where(ww, b[m:n - m], 0.0)
+    nb = np.dot(bb, bb)
+    r = np.empty(2 * lmax + 1)
+    for j, lag in enumerate(range(-lmax, lmax + 1)):
+        aa = np.where(ww, a[m + lag:n - m + lag], 0.0)
+        r[j] = np.dot(aa, bb) / math.sqrt(np.dot(aa, aa) * nb)
+    j = int(np.clip(np.argmax(r), 1, 2 * lmax - 1))
+    y0, y1, y2 = r[j - 1:j + 2]
+    den = y0 - 2 * y1 + y2
+    frac = 0.5 * (y0 - y2) / den if den < 0 else 0.0
+    return float(j - lmax + np.clip(frac, -1.0, 1.0)), float(r[j])
+
+
+def velocity_check(x, v, dt, cutoff=25.0, mask=None):
+    """Compare a measured velocity with the zero-phase derivative of displacement.
+
+    Both are compared after the same zero-phase low-pass. Raises ``DataError`` when the gain
+    is off by more than ``GAIN_TOL`` (units or sign) or the two do not correlate. A time
+    shift of ``SHIFT_TOL`` sample or more, or high-frequency noise above ``NOISE_TOL`` of the
+    velocity RMS, gives ``velocity_inconsistent`` and the derived velocity replaces it.
+    Returns ``(velocity to use, finding or None)``.
+    """
+    from mr_suspension.identification.data import DataError, derive_velocity
+
+    x = np.asarray(x, dtype=float)
+    v = np.asarray(v, dtype=float)
+    n = x.size
+    vd = derive_velocity(x, dt, cutoff)
+    vf = _lowpass(v, dt, cutoff)
+    edge = min(n // 10, int(3.0 / (cutoff * dt)) if cutoff else 10)
+    lmax = int(min(50, max(3, round(0.02 / dt)), max(1, n // 20)))
+    m = edge + lmax
+    w = np.ones(n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    if not w.all():
+        w = ndimage.binary_erosion(w, np.ones(2 * lmax + 1, dtype=bool), border_value=1)
+    w[:m] = False
+    w[n - m:] = False
+    nb = float(np.dot(vd[w], vd[w]))
+    if nb <= 0 or w.sum() < 10:
+        return v, None
+    sign = 1.0 if np.dot(vf[w], vd[w]) >= 0 else -1.0
+    shift, corr = _ncc_shift(sign * vf, vd, w, lmax, m)
+    if corr < 0.5:
+        raise DataError(f'velocity does not follow d(displacement)/dt (correlation {corr:.2f})'
+                        '; check the column mapping, or pass --derive-velocity')
+    k = int(round(shift))
+    gain = float(np.dot(np.roll(vf, -k)[w], vd[w]) / nb)
+    rms_d = math.sqrt(nb / max(int(w.sum()), 1))
+    if abs(gain - 1.0) > GAIN_TOL:
+        what = 'has the opposite sign of' if gain < 0 else 'disagrees with'
+        raise DataError(f'velocity {what} d(displacement)/dt (gain {gain:.4g}, RMS '
+                        f'{abs(gain) * rms_d:.3g} vs {rms_d:.3g} m/s); check --units '
+                        'velocity=... / displacement=... and the sign convention, or pass '
+                        '--derive-velocity')
+    e = (v - vf)[w]
+    noise = 1.4826 * float(np.median(np.abs(e - np.median(e)))) if e.size else 0.0
+    ed = (vd - _lowpass(vd, dt, cutoff))[w]
+    noise_d = 1.4826 * float(np.median(np.abs(ed - np.median(ed)))) if ed.size else 0.0
+    ratio = noise / rms_d if rms_d > 0 else 0.0
+    skewed = abs(shift) >= SHIFT_TOL
+    noisy = ratio > NOISE_TOL and noise > 3 * noise_d
+    nums = {'gain': gain, 'shift_samples': shift, 'shift_s': shift * dt, 'noise_ratio': ratio,
+            'noise_ratio_derived': noise_d / rms_d if rms_d > 0 else 0.0}
+    if not (skewed or noisy):
+        return v, None
+    parts = []
+    if skewed:
+        parts.append(f'{"lags" if shift > 0 else "leads"} d(displacement)/dt by '
+                     f'{abs(shift):.2f} sample(s) ({1e3 * abs(shift) * dt:.3g} ms)')
+    if noisy:
+        parts.append(f'carries {100 * ratio:.1f} % high-frequency noise (the derived one '
+                     f'{100 * nums["noise_ratio_derived"]:.2f} %)')
+    return vd, finding('velocity_inconsistent', 'velocity', 'corrected',
+                       'measured velocity ' + ' and '.join(parts) + f' (gain {gain:.4f}); '
+                       f'replaced by the zero-phase derivative of displacement '
+                       f'({cutoff:g} Hz)', **nums)
