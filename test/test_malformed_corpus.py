@@ -23,6 +23,10 @@ KNOWN_OPEN = {
     'bag_zero_byte_db3': 'data.py: reader message without the bag path or repair hint',
     'bag_garbage_mcap': 'data.py: "Unexpected record." without the bag or repair hint',
     'bag_truncated_mcap': 'data.py: "File end magic is invalid." without bag or repair hint',
+    'csv_no_current_variation': 'diagnose: constant current, exit 0 without a warning that the '
+                                'current dependence (c1, fy1) is not identifiable',
+    'csv_zero_current': 'diagnose: zero current throughout, exit 0 without a warning',
+    'csv_negative_current': 'data.py: negative current command accepted without a warning',
 }
 
 

@@ -60,7 +60,7 @@ from mr_suspension.control import estimation as est
 from mr_suspension.control.febc import febc_step
 from mr_suspension.control.inverse import semi_active_current
 from mr_suspension.core import damper as dmp
-from mr_suspension.core.validation import check_finite, check_nonneg, check_positive
+from mr_suspension.core.validation import check_finite, check_nonneg, check_positive, check_range
 
 # Measurement vector layout.
 M_ACC_S, M_ACC_U, M_STROKE, M_STROKE_RATE, M_VEL_S, M_VEL_U, M_FIELD = range(7)
@@ -202,6 +202,14 @@ class ControllerParams:
                        k_s=self.k_s, k_t=self.k_t)
         if self.i_min > self.i_max:
             raise ValueError(f'{owner}: i_min must be <= i_max')
+        # Plausible ranges: plant knowledge as the vehicle's (core.quarter_car), gains generous.
+        from mr_suspension.core.quarter_car import QuarterCarParams
+        for name in ('m_s', 'm_u', 'k_s', 'k_t', 'c_t'):
+            lo, hi, unit, hint, _ = QuarterCarParams.__dataclass_fields__[name].metadata['range']
+            check_range(owner, name, getattr(self, name), lo, hi, unit, hint)
+        check_range(owner, 'i_max', self.i_max, 1.0e-3, 50.0, 'A', 'largest current')
+        for name in ('c_sky', 'c_ground'):
+            check_range(owner, name, getattr(self, name), 0.0, 1.0e6, 'N s/m', 'damping gain')
         seed = self.noise_seed
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f'{owner}: noise_seed must be an integer >= 0, got {seed!r}')
