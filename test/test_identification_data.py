@@ -76,7 +76,7 @@ def test_bad_input_gives_clear_errors(tmp_path, case, match):
     cols = [t, x, v, f, i]
     units = {}
     if case == 'missing':
-        header[3] = 'Force'
+        header[3] = 'Kraft'
     elif case == 'no_current':
         header[4] = 'amps'
     elif case == 'nan_many':

@@ -375,32 +375,134 @@ def _vrths_value(token):
     return float(token.replace('x', '.'))
 
 
-def _read_table(path):
-    text = Path(path).read_text(errors='replace').splitlines()
-    lines = [ln for ln in text if ln.strip() and not ln.lstrip().startswith('#')]
-    if not lines:
-        raise DataError(f'{path}: empty file')
-    delim = ',' if ',' in lines[0] else (';' if ';' in lines[0] else None)
-    first = [s.strip().strip('"') for s in (lines[0].split(delim) if delim else lines[0].split())]
-    try:
-        [float(s) for s in first]
-        header = None
-        body = lines
-    except ValueError:
-        header = first
-        body = lines[1:]
+ALIASES = {'time': ('t', 'timestamp'), 'displacement': ('disp', 'stroke', 'position'),
+           'velocity': ('vel', 'stroke_rate', 'speed'), 'force': ('load', 'damper_force'),
+           'current_command': ('current_cmd', 'i_cmd', 'command'),
+           'voltage_command': ('voltage_cmd', 'u_cmd', 'voltage'),
+           'current': ('coil_current', 'i_coil', 'measured_current'),
+           'temperature': ('temp',)}
+_BRACKET = re.compile(r'^(.*?)\s*[\[(]\s*([^\])]*?)\s*[\])]\s*$')
+
+
+def _norm_unit(unit):
+    return unit.strip().lower().replace(' ', '').replace('\u00b0', 'deg').replace('degc', 'c')
+
+
+def _header_name(h):
+    """``(name, unit or None)`` of a header cell: ``Time [s]``, ``Force_N``, ``force (kN)``."""
+    h = h.strip().strip('"\'').strip()
+    m = _BRACKET.match(h)
+    if m:
+        return m.group(1).strip().lower().replace(' ', '_').replace('-', '_'), m.group(2)
+    return h.lower().replace(' ', '_').replace('-', '_'), None
+
+
+def map_header(header, opts, label):
+    """Map header cells to quantities: ``({quantity: column index}, {quantity: unit})``.
+
+    ``--columns`` names match exactly, then case-insensitively; other cells match a quantity
+    (or a common alias) case-insensitively, with a unit in brackets or as a ``_unit`` suffix
+    (``Time [s]``, ``Force_N``, ``velocity_mm_s``). Header units apply unless ``--units``
+    gives one.
+    """
+    cols, units, prio = {}, {}, {}
+    lower = [h.strip().strip('"\'').strip().lower() for h in header]
+    for canon, src in opts.columns.items():
+        if src in header:
+            cols[canon] = header.index(src)
+        elif src.lower() in lower:
+            cols[canon] = lower.index(src.lower())
+        else:
+            raise DataError(f'{label}: mapped column {src!r} for {canon} not in header {header}')
+    taken = set(cols.values())
+    for j, h in enumerate(header):
+        if j in taken:
+            continue
+        name, unit = _header_name(h)
+        for canon in CANONICAL:
+            if canon in opts.columns:
+                continue
+            for rank, alias in enumerate((canon,) + ALIASES[canon]):
+                u = unit
+                if name != alias:
+                    if not name.startswith(alias + '_') or unit is not None:
+                        continue
+                    u = name[len(alias) + 1:]
+                    if _norm_unit(u.replace('_', '/')) in UNITS[canon]:
+                        u = u.replace('_', '/')
+                    elif _norm_unit(u) not in UNITS[canon]:
+                        continue
+                if u is not None and _norm_unit(u) not in UNITS[canon]:
+                    raise DataError(f'{label}: header {h!r} gives unit {u!r}, not known for '
+                                    f'{canon} ({sorted(UNITS[canon])}); pass --units '
+                                    f'{canon}=UNIT')
+                if canon in cols and prio[canon] == rank:
+                    raise DataError(f'{label}: columns {header[cols[canon]]!r} and {h!r} both '
+                                    f'look like {canon}; choose with --columns {canon}=NAME')
+                if canon not in cols or rank < prio[canon]:
+                    cols[canon], prio[canon] = j, rank
+                    if u is not None:
+                        units[canon] = _norm_unit(u)
+                    else:
+                        units.pop(canon, None)
+                break
+    return cols, {k: u for k, u in units.items() if k not in opts.units}
+
+
+def _split(line, delim):
+    return [c.strip().strip('"') for c in (line.split(delim) if delim else line.split())]
+
+
+def _read_table_slow(path, header, delim, skip):
+    """Line-by-line parser: empty fields are NaN, a bad line is named in the error."""
+    with open(path, encoding='utf-8-sig', errors='replace') as fh:
+        lines = fh.read().splitlines()[skip:]
     rows = []
-    for k, ln in enumerate(body):
-        parts = ln.split(delim) if delim else ln.split()
+    for k, ln in enumerate(lines):
+        if not ln.strip() or ln.lstrip().startswith('#'):
+            continue
         try:
-            rows.append([float(s) if s.strip() not in ('', 'nan', 'NaN') else math.nan
-                         for s in parts])
+            rows.append([float(c) if c not in ('', 'nan', 'NaN') else math.nan
+                         for c in _split(ln, delim)])
         except ValueError:
             raise DataError(f'{path}: non-numeric value on data line {k + 1}: {ln[:60]!r}')
+    if not rows:
+        raise DataError(f'{path}: no data rows')
     width = len(header) if header else len(rows[0])
     if any(len(r) != width for r in rows):
         raise DataError(f'{path}: rows have different numbers of columns')
-    return header, np.array(rows, dtype=float).reshape(-1, width)
+    return np.array(rows, dtype=float).reshape(-1, width)
+
+
+def _read_table(path):
+    """``(header or None, 2-D table)`` of a CSV/whitespace text file (``np.loadtxt`` fast path)."""
+    first, skip = None, 0
+    with open(path, encoding='utf-8-sig', errors='replace') as fh:
+        for line in fh:
+            skip += 1
+            if line.strip() and not line.lstrip().startswith('#'):
+                first = line.strip()
+                break
+    if first is None:
+        raise DataError(f'{path}: empty file')
+    delim = ',' if ',' in first else (';' if ';' in first else ('\t' if '\t' in first else None))
+    cells = _split(first, delim)
+    try:
+        [float(c) for c in cells]
+        header = None
+        skip -= 1
+    except ValueError:
+        header = cells
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            table = np.loadtxt(path, delimiter=delim, skiprows=skip, comments='#', ndmin=2,
+                               dtype=float, encoding='utf-8-sig')
+        if header and table.shape[1] != len(header) or table.shape[0] == 0:
+            raise ValueError('shape')
+    except ValueError:
+        table = _read_table_slow(path, header, delim, skip)
+    return header, table
 
 
 def load_text(path, opts=None):
@@ -419,14 +521,10 @@ def load_text(path, opts=None):
             return build_record(path.name, cols, opts, meta)
         raise DataError(f'{path}: no header row; the CSV needs a header naming the columns '
                         f'({", ".join(CANONICAL)})')
-    names = {h: j for j, h in enumerate(header)}
-    cols = {}
-    for canon in CANONICAL:
-        src = opts.columns.get(canon, canon)
-        if src in names:
-            cols[canon] = table[:, names[src]]
-        elif canon in opts.columns:
-            raise DataError(f'{path}: mapped column {src!r} for {canon} not in header {header}')
+    index, units = map_header(header, opts, path)
+    cols = {canon: table[:, j] for canon, j in index.items()}
+    if units:
+        opts = replace(opts, units={**units, **opts.units})
     return build_record(path.name, _apply_units(cols, opts.units), opts)
 
 
@@ -524,15 +622,57 @@ def load_bag(path, opts=None):
     topics are ignored; or ``--columns force=/my/topic``). Values are ``msg.data``
     (Float64) or, for ``JointState``, ``position[0]``/``velocity[0]`` and ``effort[0]`` on
     the force topic (the actuator also reports stroke and rate there). Times are header
-    stamps when present, else bag stamps (sim time in lockstep). All signals are
-    interpolated onto a uniform grid at the force topic's median period (commands held).
+    stamps when present, else bag stamps (sim time in lockstep). The force messages are the
+    rows; the other signals are interpolated at their stamps (commands held); the rows then
+    go through the same time-base checks as a file. An unreadable bag is a ``DataError``
+    that says to run ``mr-suspension bag repair BAG``.
     """
+    opts = opts or LoadOptions()
+    try:
+        series = _read_bag(path, opts)
+    except DataError:
+        raise
+    except Exception as exc:  # rosbags/mcap/yaml/sqlite raise many types for damaged bags
+        msg = ' '.join(str(exc).split())[:160] or type(exc).__name__
+        raise DataError(f'{path}: cannot read the bag ({type(exc).__name__}: {msg}); run '
+                        f'`mr-suspension bag repair {path}` and load the repaired bag') from None
+    for alt in ('displacement', 'velocity'):
+        if alt + '_alt' in series:
+            if alt not in series:
+                series[alt] = series[alt + '_alt']
+            del series[alt + '_alt']
+    if 'force' not in series:
+        raise DataError(f'{path}: no force topic; found quantities {sorted(series)}')
+    t = np.unique(np.array(series['force'][0]))
+    if t.size < 2:
+        raise DataError(f'{path}: too few force messages')
+    dt = float(np.median(np.diff(t)))
+    cols = {'time': t}
+    for q, (ts, vs) in series.items():
+        ts = np.array(ts)
+        vs = np.array(vs)
+        order = np.argsort(ts, kind='stable')
+        ts, vs = ts[order], vs[order]
+        if q in ('current_command', 'voltage_command'):
+            idx = np.clip(np.searchsorted(ts, t + 0.01 * dt, side='right') - 1, 0, ts.size - 1)
+            cols[q] = vs[idx]
+        elif q == 'force':
+            keep = np.concatenate((np.diff(ts) > 0, [True]))
+            cols[q] = vs[keep]
+        else:
+            cols[q] = np.interp(t, ts, vs)
+    return build_record(Path(path).name, _apply_units(cols, opts.units), opts)
+
+
+def _read_bag(path, opts):
+    """Time series ``{quantity: ([t], [value])}`` of the recognised topics of a bag."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import get_typestore, Stores
 
-    opts = opts or LoadOptions()
     series = {}
     with AnyReader([Path(path)], default_typestore=get_typestore(Stores.LATEST)) as reader:
+        if not reader.connections or not reader.message_count:
+            raise DataError(f'{path}: no messages in the bag')
         conns = [c for c in reader.connections if _topic_quantity(c.topic, opts)]
         if not conns:
             topics = [c.topic for c in reader.connections]
@@ -545,30 +685,7 @@ def load_bag(path, opts=None):
                 series.setdefault(key, ([], []))
                 series[key][0].append(ts)
                 series[key][1].append(val)
-    for alt in ('displacement', 'velocity'):
-        if alt + '_alt' in series:
-            if alt not in series:
-                series[alt] = series[alt + '_alt']
-            del series[alt + '_alt']
-    if 'force' not in series:
-        raise DataError(f'{path}: no force topic; found quantities {sorted(series)}')
-    tf = np.unique(np.array(series['force'][0]))
-    if tf.size < 2:
-        raise DataError(f'{path}: too few force messages')
-    dt = float(np.median(np.diff(tf)))
-    t = tf[0] + dt * np.arange(int(round((tf[-1] - tf[0]) / dt)) + 1)
-    cols = {'time': t}
-    for q, (ts, vs) in series.items():
-        ts = np.array(ts)
-        vs = np.array(vs)
-        order = np.argsort(ts, kind='stable')
-        ts, vs = ts[order], vs[order]
-        if q in ('current_command', 'voltage_command'):
-            idx = np.clip(np.searchsorted(ts, t + 0.01 * dt, side='right') - 1, 0, ts.size - 1)
-            cols[q] = vs[idx]
-        else:
-            cols[q] = np.interp(t, ts, vs)
-    return build_record(Path(path).name, _apply_units(cols, opts.units), opts)
+    return series
 
 
 def load_path(path, opts=None):
@@ -589,7 +706,8 @@ def load_records(paths, opts=None):
     recs = []
     for p in paths:
         p = Path(p)
-        if p.is_dir() and not (p / 'metadata.yaml').exists():
+        storage = p.is_dir() and any(q.suffix.lower() in ('.mcap', '.db3') for q in p.iterdir())
+        if p.is_dir() and not (p / 'metadata.yaml').exists() and not storage:
             files = sorted(q for q in p.iterdir() if q.suffix.lower() in ('.csv', '.txt', '.mat'))
             if not files:
                 raise DataError(f'{p}: directory without .csv/.txt/.mat files or bag metadata')

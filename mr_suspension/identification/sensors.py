@@ -142,7 +142,7 @@ def uniform_time(t):
             f'time stamps jitter by up to {rmax:.3g} s ({100 * rmax / dt:.1f} % of the '
             f'{dt:.6g} s step) around a uniform line; the uniform grid is used',
             dt=dt, max_residual=rmax)
-    grid = d0 * np.arange(int(rel[-1] / d0 + 1e-9) + 1)
+    grid = d0 * np.arange(int(math.ceil(rel[-1] / d0 - 1e-9)) + 1)
     return TimeBase(grid, d0, None), finding(
         'irregular_sampling', 'time', 'corrected',
         f'irregular sampling (steps {dts.min():.3g}..{dts.max():.3g} s, {rmax:.3g} s from any '
@@ -385,7 +385,7 @@ def velocity_check(x, v, dt, cutoff=25.0, mask=None):
     edge = min(n // 10, int(3.0 / (cutoff * dt)) if cutoff else 10)
     lmax = int(min(50, max(3, round(0.02 / dt)), max(1, n // 20)))
     m = edge + lmax
-    w = np.ones(n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    w = np.ones(n, dtype=bool) if mask is None else np.array(mask, dtype=bool)
     if not w.all():
         w = ndimage.binary_erosion(w, np.ones(2 * lmax + 1, dtype=bool), border_value=1)
     w[:m] = False

@@ -1,0 +1,212 @@
+"""Sensor findings on hand-made rig records: stamps, dropouts, clipping, spikes, velocity."""
+
+from pathlib import Path
+import warnings
+
+import numpy as np
+import pytest
+
+from mr_suspension.identification import data as dataio
+from mr_suspension.identification import sensors
+
+SHARED = Path(__file__).resolve().parents[1].parent / 'shared'
+VRTHS = SHARED / 'data' / 'vrths'
+
+
+def _motion(t):
+    """Displacement [m] and its exact derivative: two sines (1.3 and 3.1 Hz)."""
+    w1, w2 = 2 * np.pi * 1.3, 2 * np.pi * 3.1
+    x = 0.008 * np.sin(w1 * t) + 0.002 * np.sin(w2 * t + 0.4)
+    v = 0.008 * w1 * np.cos(w1 * t) + 0.002 * w2 * np.cos(w2 * t + 0.4)
+    return x, v
+
+
+def _cols(t, seed=0, noise=5.0):
+    x, v = _motion(t)
+    rng = np.random.default_rng(seed)
+    f = 1500 * v + 400 * np.tanh(v / 0.02) + noise * rng.standard_normal(t.size)
+    return {'time': t, 'displacement': x, 'velocity': v, 'force': f,
+            'current_command': np.full(t.size, 0.5)}
+
+
+def _build(cols, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        return dataio.build_record('hand', cols, dataio.LoadOptions(**kw))
+
+
+def _names(rec):
+    return [f['finding'] for f in rec.findings]
+
+
+def test_clean_record_has_no_finding():
+    rec = _build(_cols(np.arange(8000) * 1e-3))
+    assert rec.findings == ()
+    assert rec.mask.all() and rec.velocity_source == 'measured'
+    np.testing.assert_array_equal(rec.stamps, rec.time)
+
+
+def test_rounded_stamps_at_3khz_recover_the_rate_without_resampling():
+    n = 60000
+    t0 = 12.3456
+    stamps = np.round(t0 + np.arange(n) / 3000.0, 4)      # 0.1 ms rounding at 3 kHz
+    assert len(np.unique(np.round(np.diff(stamps), 9))) == 2
+    base, fnd = sensors.uniform_time(stamps)
+    assert fnd['finding'] == 'stamp_rounding' and fnd['action'] == 'corrected'
+    assert fnd['quantum'] == pytest.approx(1e-4, rel=1e-6)
+    assert not base.resampled and base.time.size == n
+    assert abs(base.dt * 3000.0 - 1.0) < 1e-9
+    cols = _cols(np.arange(n) / 3000.0)
+    cols['time'] = stamps
+    rec = _build(cols)
+    assert rec.n == n and _names(rec) == ['stamp_rounding']
+    assert abs(rec.dt * 3000.0 - 1.0) < 1e-9
+    np.testing.assert_array_equal(rec.force, cols['force'])
+    np.testing.assert_allclose(rec.stamps, stamps - stamps[0], atol=0)
+
+
+def test_missing_rows_are_masked_on_the_uniform_grid():
+    t = np.arange(6000) * 1e-3
+    cols = _cols(t)
+    gone = np.r_[1000:1005, 4200]
+    keep = np.setdiff1d(np.arange(t.size), gone)
+    rec = _build({k: v[keep] for k, v in cols.items()})
+    assert rec.n == t.size and rec.dt == pytest.approx(1e-3, rel=1e-12)
+    np.testing.assert_array_equal(np.flatnonzero(~rec.mask), gone)
+    (fnd,) = rec.findings
+    assert fnd['finding'] == 'dropout' and fnd['samples'] == 6 and fnd['runs'] == 2
+    np.testing.assert_allclose(rec.force[keep], cols['force'][keep])
+    np.testing.assert_allclose(rec.stamps, t[keep])
+    stamps, f = dataio.at_stamps(rec, rec.force)
+    np.testing.assert_array_equal(f, cols['force'][keep])
+
+
+def test_clipped_load_cell_is_masked():
+    cols = _cols(np.arange(8000) * 1e-3)
+    rail = 0.7 * cols['force'].max()
+    over = cols['force'] >= rail
+    assert over.sum() > 300
+    cols['force'] = np.minimum(cols['force'], rail)
+    rec = _build(cols)
+    (fnd,) = rec.findings
+    assert fnd['finding'] == 'clipping' and fnd['channel'] == 'force'
+    assert fnd['action'] == 'excluded' and fnd['rail_high'] == rail
+    np.testing.assert_array_equal(~rec.mask, over)
+
+
+def test_nan_and_frozen_runs_are_masked():
+    cols = _cols(np.arange(8000) * 1e-3)
+    f = cols['force'].copy()
+    f[2000:2050] = np.nan
+    f[6000:6200] = f[5999]                  # logger froze for 0.2 s while the damper moved
+    cols['force'] = f
+    rec = _build(cols)
+    (fnd,) = rec.findings
+    assert fnd['finding'] == 'dropout' and fnd['nan_samples'] == 50
+    assert fnd['frozen_runs'] == 1
+    bad = np.flatnonzero(~rec.mask)
+    expect = np.r_[2000:2050, 6000:6200]
+    assert set(expect) <= set(bad) and len(bad) - len(expect) <= 1    # 5999 holds the value
+    assert np.all(np.isfinite(rec.force))
+
+
+def test_velocity_skewed_by_half_a_millisecond_is_replaced():
+    t = np.arange(10000) * 1e-3
+    cols = _cols(t)
+    _, v_late = _motion(t - 0.5e-3)
+    v, fnd = sensors.velocity_check(cols['displacement'], v_late, 1e-3)
+    assert fnd['finding'] == 'velocity_inconsistent'
+    assert fnd['shift_samples'] == pytest.approx(0.5, abs=0.05)
+    assert fnd['gain'] == pytest.approx(1.0, abs=0.01)
+    v0, none = sensors.velocity_check(cols['displacement'], cols['velocity'], 1e-3)
+    assert none is None and v0 is cols['velocity']
+    cols['velocity'] = v_late
+    rec = _build(cols)
+    assert _names(rec) == ['velocity_inconsistent']
+    assert rec.velocity_source.startswith('derived') and rec.mask.all()
+    np.testing.assert_allclose(rec.velocity, dataio.derive_velocity(cols['displacement'], 1e-3))
+
+
+def test_velocity_derived_from_a_noisy_displacement_is_replaced():
+    t = np.arange(10000) * 1e-3
+    cols = _cols(t)
+    rng = np.random.default_rng(3)
+    x = cols['displacement'] + 2e-5 * rng.standard_normal(t.size)
+    cols['displacement'] = x
+    cols['velocity'] = np.gradient(x, 1e-3)        # the user's own raw derivative
+    rec = _build(cols)
+    (fnd,) = rec.findings
+    assert fnd['finding'] == 'velocity_inconsistent' and fnd['noise_ratio'] > 0.05
+    assert abs(fnd['shift_samples']) < 0.3
+    assert rec.velocity_source.startswith('derived')
+    _, v_true = _motion(t)
+    inner = slice(300, -300)
+    err_rec = np.std(rec.velocity[inner] - v_true[inner])
+    assert err_rec < 0.3 * np.std(cols['velocity'][inner] - v_true[inner])
+
+
+def test_velocity_in_wrong_units_or_sign_is_an_error():
+    t = np.arange(5000) * 1e-3
+    x, v = _motion(t)
+    with pytest.raises(dataio.DataError, match='check --units'):
+        sensors.velocity_check(x, 1.1 * v, 1e-3)
+    with pytest.raises(dataio.DataError, match='opposite sign'):
+        sensors.velocity_check(x, -v, 1e-3)
+
+
+def test_spikes_are_excluded_if_few_and_an_error_if_many():
+    cols = _cols(np.arange(8000) * 1e-3)
+    cols['force'][5000] = cols['force'][5000] + 20 * np.ptp(cols['force'])
+    cols['force'][3000] = 1e300
+    rec = _build(cols)
+    (fnd,) = rec.findings
+    assert fnd['finding'] == 'spike' and fnd['nonphysical'] == 1 and fnd['outliers'] == 1
+    np.testing.assert_array_equal(np.flatnonzero(~rec.mask), [3000, 5000])
+    assert np.max(np.abs(rec.force)) < 2 * np.max(np.abs(np.delete(cols['force'], [3000, 5000])))
+    cols['force'][::50] = 1e300
+    with pytest.raises(dataio.DataError, match='non-physical'):
+        _build(cols)
+
+
+def test_jittery_and_irregular_stamps():
+    rng = np.random.default_rng(1)
+    t = np.arange(5000) * 1e-3
+    _, fnd = sensors.uniform_time(t + 2e-5 * rng.standard_normal(t.size))
+    assert fnd['finding'] == 'stamp_jitter'
+    t_irr = np.cumsum(rng.uniform(0.5e-3, 1.5e-3, 5000))
+    base, fnd = sensors.uniform_time(t_irr)
+    assert fnd['finding'] == 'irregular_sampling' and base.resampled
+    rec = _build(_cols(t_irr))
+    assert 'irregular_sampling' in _names(rec) and rec.stamps.size == 5000
+    stamps, f = dataio.at_stamps(rec, rec.time)
+    np.testing.assert_allclose(f, stamps, atol=1e-12)
+
+
+@pytest.mark.parametrize('name', ['10mm1Hz0x25A.txt', '25mm0x1Hz1A.txt', '2mm5Hz0A.txt',
+                                  '5mm3Hz0x5A.txt'])
+def test_vrths_sine_files_only_report_their_backward_difference_velocity(name):
+    """The vrths velocity column is (x_k - x_{k-1}) / dt: half a sample late, nothing else."""
+    path = VRTHS / 'preprocessed_sine' / name
+    raw = np.loadtxt(path)
+    dt = raw[1, 0] - raw[0, 0]
+    backward = np.diff(raw[:, 1]) / dt
+    assert np.max(np.abs(raw[1:, 2] - backward)) < 1e-3 * np.max(np.abs(raw[:, 2]))
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        (rec,) = dataio.load_records([path])
+    assert _names(rec) == ['velocity_inconsistent'] and rec.mask.all()
+    assert rec.findings[0]['shift_samples'] == pytest.approx(0.5, abs=0.05)
+
+
+def test_vrths_earthquake_record_has_no_finding():
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        recs = dataio.load_records([VRTHS / 'validation' / 'validacion.mat'])
+    assert all(r.findings == () and r.mask.all() for r in recs)
+
+
+def test_package_generator_records_have_no_finding():
+    from mr_suspension.identification import synthetic
+
+    rec, _ = synthetic.make_record((), seed=4, duration=10.0)
+    assert rec.findings == () and rec.mask.all()
