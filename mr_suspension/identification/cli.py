@@ -163,31 +163,23 @@ def cmd_predict(args):
             print(f'warning: model fitted with {fitted_with} input, record {r.name} gives '
                   f'{r.input_kind}; the prediction uses it as the same current',
                   file=sys.stderr)
-        f = model_io.predict(model, r)
+        stamps, f = dataio.at_stamps(r, model_io.predict(model, r))
         path = out if len(records) == 1 else out.with_name(f'{out.stem}_{k}{out.suffix}')
-        _write_csv(path, r.time, f)
-        print(f'wrote {path} ({r.n} samples)')
+        _write_csv(path, stamps, f)
+        print(f'wrote {path} ({stamps.size} rows at the input time stamps)')
     return 0
 
 
 def _load_for_predict(path, opts):
-    """Load records for prediction; a missing force column is filled with zeros."""
-    try:
-        return dataio.load_records([path], opts)
-    except dataio.DataError as exc:
-        if 'force' not in str(exc):
-            raise
-    header, table = dataio._read_table(path)
-    if header is None:
-        raise dataio.DataError(f'{path}: no header row')
-    cols = {c: table[:, header.index(opts.columns.get(c, c))]
-            for c in dataio.CANONICAL if opts.columns.get(c, c) in header}
-    cols = dataio._apply_units(cols, opts.units)
-    n = next(iter(cols.values())).size
-    cols['force'] = np.where(np.arange(n) % 2 == 0, 100.0, -100.0)
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore')
-        return [dataio.build_record(Path(path).name, cols, opts)]
+    """Load records for prediction (any force column is ignored); print input warnings."""
+    from dataclasses import replace
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        records = dataio.load_records([path], replace(opts, need_force=False))
+    for w in caught:
+        print(f'warning: {w.message}', file=sys.stderr)
+    return records
 
 
 def cmd_doe(args):
