@@ -17,6 +17,8 @@ from mr_suspension.core.metrics import ride_metrics
 from mr_suspension.core.simulator import CornerConfig, simulate
 
 DEBUG_ENV = 'MR_SUSPENSION_DEBUG'  # set to 1 for tracebacks instead of one-line errors
+# Commands of the plugins that need more than numpy/scipy (shown as unavailable if those fail).
+PLUGIN_COMMANDS = {'mr_suspension.nodes.cli': ('nodes',)}
 # Subcommands contributed by the other parts of the package (each has register(subparsers)).
 PLUGINS = ('mr_suspension.identification.cli', 'mr_suspension.evaluation.cli',
            'mr_suspension.nodes.cli', 'mr_suspension.bagtools')
@@ -225,10 +227,27 @@ def build_parser():
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
             if exc.name != name:
-                raise
+                _unavailable(sub, name, exc)
+            continue
+        except ImportError as exc:  # e.g. rclpy present but its C libraries are not found
+            _unavailable(sub, name, exc)
             continue
         module.register(sub)
     return parser
+
+
+def _unavailable(sub, plugin, exc):
+    """Register the commands of a plugin that failed to import; using one says why."""
+    reason = ' '.join(str(exc).split())[:200]
+
+    def fail(args):
+        raise ValueError(f'{args.command} is unavailable: {plugin} cannot be imported '
+                         f'({type(exc).__name__}: {reason}); install or source its '
+                         'dependencies (e.g. ROS 2 for the nodes)')
+    for cmd in PLUGIN_COMMANDS.get(plugin, ()):
+        p = sub.add_parser(cmd, help=f'(unavailable: {type(exc).__name__})')
+        p.add_argument('rest', nargs=argparse.REMAINDER)
+        p.set_defaults(func=fail)
 
 
 def output_dir(path, option='--out'):
