@@ -245,8 +245,9 @@ def _unavailable(sub, plugin, exc):
                          f'({type(exc).__name__}: {reason}); install or source its '
                          'dependencies (e.g. ROS 2 for the nodes)')
     for cmd in PLUGIN_COMMANDS.get(plugin, ()):
-        p = sub.add_parser(cmd, help=f'(unavailable: {type(exc).__name__})')
-        p.add_argument('rest', nargs=argparse.REMAINDER)
+        p = sub.add_parser(cmd, help=f'(unavailable: {type(exc).__name__})',
+                           prefix_chars='+', add_help=False)  # any options: report, not parse
+        p.add_argument('rest', nargs='*')
         p.set_defaults(func=fail)
 
 
