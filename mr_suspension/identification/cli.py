@@ -60,8 +60,11 @@ def register(subparsers):
     p.add_argument('--validate', action='append', default=[], metavar='FILE',
                    help='record never used in the fit, scored with the final models '
                         '(repeat for several)')
-    p.add_argument('--effects', default=','.join(engine.EFFECTS),
+    p.add_argument('--effects', default=','.join(engine.ALL_EFFECTS),
                    help='comma-separated subset of the catalogue to test')
+    p.add_argument('--driver', default='wonder_box',
+                   help='nominal driver (config/drivers/NAME.yaml or a YAML path) that a '
+                        'measured coil current is compared with (default wonder_box)')
     p.add_argument('--folds', type=int, default=5, help='cross-validation folds (default 5)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
     p.add_argument('--quiet', action='store_true', help='no progress bar or summary')
@@ -101,9 +104,12 @@ def cmd_diagnose(args):
         raise ValueError(f'--folds must be 2..50, got {args.folds}')
     opts = _load_options(args)
     effects = tuple(e.strip() for e in args.effects.split(',') if e.strip())
-    bad = [e for e in effects if e not in engine.EFFECTS]
+    bad = [e for e in effects if e not in engine.ALL_EFFECTS]
     if bad:
-        raise dataio.DataError(f'unknown effect(s) {bad}; known: {", ".join(engine.EFFECTS)}')
+        raise dataio.DataError(f'unknown effect(s) {bad}; known: '
+                               f'{", ".join(engine.ALL_EFFECTS)}')
+    from mr_suspension.core.config import load_driver
+    nominal = load_driver(args.driver)
     t0 = time.time()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always')
@@ -123,16 +129,19 @@ def cmd_diagnose(args):
             bar.set_postfix_str(label[:40])
             bar.update(1)
 
-    res = diagnose.run(records, effects=effects, n_folds=args.folds, progress=tick)
+    res = diagnose.Diagnosis(effects=effects, n_folds=args.folds, nominal_driver=nominal,
+                             progress=tick).fit(records)
     if bar is not None:
         bar.close()
     rep, _ = report.write(res, records, args.out, validate, time.time() - t0,
                           make_plots=not args.no_plots, input_warnings=notes)
     if not args.quiet:
-        causes = ', '.join(c['effect'] for c in rep['causes']) or 'none'
+        causes = ', '.join(f'{c["effect"]} ({c["location"]})' for c in rep['causes']) or 'none'
+        nf = rep['noise_floor']
+        floor = f', noise floor {nf["nrmse"]:.4f}' if nf else ', noise floor not estimable'
         print(f'verdict: {rep["verdict"]}; causes: {causes}; held-out NRMSE baseline '
               f'{rep["baseline"]["heldout_nrmse"]:.4f} -> extended '
-              f'{rep["extended"]["heldout_nrmse"]:.4f} (gain {rep["gain"]:.1%})')
+              f'{rep["extended"]["heldout_nrmse"]:.4f} (gain {rep["gain"]:.1%}){floor}')
         if rep['ambiguous']:
             print('ambiguous: ' + '; '.join('/'.join(p) for p in rep['ambiguous']))
         if rep['untestable']:

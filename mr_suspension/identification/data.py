@@ -424,7 +424,9 @@ def map_header(header, opts, label):
                 continue
             for rank, alias in enumerate((canon,) + ALIASES[canon]):
                 u = unit
+                rank *= 2
                 if name != alias:
+                    rank += 1
                     if not name.startswith(alias + '_') or unit is not None:
                         continue
                     u = name[len(alias) + 1:]
