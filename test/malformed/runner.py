@@ -76,6 +76,7 @@ def run_subprocess(case, timeout=TIMEOUT):
     """Run ``case.argv`` as ``python -m mr_suspension.cli`` in a child process."""
     env = dict(os.environ)
     env.pop('MR_SUSPENSION_DEBUG', None)
+    timeout = max(timeout, 2 * TIMEOUT)  # a cold interpreter start on a loaded machine
     t0 = time.perf_counter()
     try:
         proc = subprocess.run([sys.executable, '-m', 'mr_suspension.cli'] + list(case.argv),
