@@ -209,3 +209,142 @@ def test_rosbag2_from_node_set_topics(tmp_path):
     np.testing.assert_allclose(rec.displacement, x, atol=1e-12)
     np.testing.assert_allclose(rec.velocity, v, atol=1e-9)
     assert rec.velocity_source == 'measured' and rec.input_kind == 'current'
+
+
+def test_time_in_ms_is_converted_with_a_warning_or_refused(tmp_path):
+    t, x, v, f, i = _table(3000)
+    p = _csv(tmp_path / 'ms.csv', ['time', 'displacement', 'force', 'current_command'],
+             [t * 1e3, x, f, i])
+    with pytest.warns(UserWarning, match='time taken as ms'):
+        (rec,) = dataio.load_records([p])
+    assert rec.dt == pytest.approx(1e-3) and rec.duration == pytest.approx(3.0)
+    with pytest.raises(dataio.DataError, match='units time=ms'):
+        dataio.load_records([p], dataio.LoadOptions(units={'time': 's'}))
+
+
+@pytest.mark.parametrize('what', ['still', 'noise_only'])
+def test_no_motion_is_an_error(tmp_path, what):
+    t, x, v, f, i = _table()
+    rng = np.random.default_rng(0)
+    x = np.zeros_like(t) if what == 'still' else 5e-6 * rng.standard_normal(t.size)
+    f = 50 + rng.standard_normal(t.size)
+    p = _csv(tmp_path / 'still.csv', ['time', 'displacement', 'force', 'current_command'],
+             [t, x, f, i])
+    with pytest.raises(dataio.DataError, match='no motion'):
+        dataio.load_records([p])
+
+
+def test_one_huge_force_value_is_excluded_not_fatal(tmp_path):
+    t, x, v, f, i = _table()
+    f2 = f.copy()
+    f2[700] = 1e300
+    p = _csv(tmp_path / 'huge.csv', ['time', 'displacement', 'force', 'current_command'],
+             [t, x, f2, i])
+    with pytest.warns(UserWarning, match='non-physical'):
+        (rec,) = dataio.load_records([p])
+    assert np.all(np.isfinite(rec.force)) and np.max(np.abs(rec.force)) < 1.01 * np.max(np.abs(f))
+    assert np.flatnonzero(~rec.mask).tolist() == [700]
+    assert np.isfinite(np.std(rec.force[rec.mask]))
+
+
+def test_headers_with_case_and_units_are_mapped(tmp_path):
+    t, x, v, f, i = _table()
+    p = _csv(tmp_path / 'caps.csv', ['Time [s]', 'Displacement (mm)', 'Velocity_mm_s', 'Force_N',
+                                     'Current_Command'], [t, x * 1e3, v * 1e3, f, i])
+    (rec,) = dataio.load_records([p])
+    np.testing.assert_allclose(rec.displacement, x, atol=1e-12)
+    np.testing.assert_allclose(rec.force, f)
+    assert rec.velocity_source == 'measured'
+    p = _csv(tmp_path / 'lbf.csv', ['time', 'displacement', 'Force [lbf]', 'current_command'],
+             [t, x, f, i])
+    with pytest.raises(dataio.DataError, match='lbf'):
+        dataio.load_records([p])
+    p = _csv(tmp_path / 'two.csv', ['time', 'displacement', 'Force', 'force_N',
+                                    'current_command'], [t, x, f, f, i])
+    (rec,) = dataio.load_records([p])     # the exact name wins over name_unit
+    p = _csv(tmp_path / 'dup.csv', ['time', 'displacement', 'Force', 'FORCE',
+                                    'current_command'], [t, x, f, f, i])
+    with pytest.raises(dataio.DataError, match='--columns force='):
+        dataio.load_records([p])
+
+
+def _model_file(tmp_path):
+    from mr_suspension.core.extended import ExtendedDamperParams
+    from mr_suspension.identification import model_io
+
+    params = ExtendedDamperParams(f0=0.0, c0=800.0, c1=1200.0, fy0=80.0, fy1=600.0, v_y=0.01)
+    path = tmp_path / 'model.json'
+    model_io.save_model(path, model_io.model_dict(
+        params, {'dead_time': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0}, (), 'current_command'))
+    return path, params
+
+
+@pytest.mark.parametrize('stamps', ['rounded_3khz', 'missing_rows'])
+def test_predict_writes_rows_at_the_input_stamps(tmp_path, stamps):
+    """Capitalised header, no force column; rows come back at the input's own times."""
+    from mr_suspension.identification import cli
+
+    model, _ = _model_file(tmp_path)
+    n = 9000
+    if stamps == 'rounded_3khz':
+        t = np.round(5.0 + np.arange(n) / 3000.0, 4)
+    else:
+        t = np.delete(np.arange(n) * 1e-3, np.r_[2000:2003, 7000])
+    x = 0.01 * np.sin(2 * np.pi * 1.5 * t)
+    i = np.full(t.size, 0.6)
+    p = _csv(tmp_path / 'in.csv', ['Time', 'Displacement', 'Current_Command'], [t, x, i])
+    out = tmp_path / 'pred.csv'
+    assert cli.main(['predict', '--model', str(model), str(p), '--out', str(out)]) == 0
+    got = np.loadtxt(out, delimiter=',', skiprows=1)
+    assert got.shape == (t.size, 2)
+    np.testing.assert_allclose(got[:, 0], t - t[0], atol=1e-9)
+    # truth independent of the loader: the law on the exact motion at those stamps
+    vt = 0.01 * 2 * np.pi * 1.5 * np.cos(2 * np.pi * 1.5 * t)
+    inner = slice(200, -200)
+    ref = 800 * vt + 1200 * 0.6 * vt + (80 + 600 * 0.6) * np.tanh(vt / 0.01)
+    assert np.max(np.abs(got[inner, 1] - ref[inner])) < 0.02 * np.max(np.abs(ref))
+
+
+def test_unreadable_bags_are_one_line_errors(tmp_path):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import get_typestore, Stores
+
+    empty_meta = tmp_path / 'meta'
+    empty_meta.mkdir()
+    (empty_meta / 'metadata.yaml').write_text('')
+    with pytest.raises(dataio.DataError, match='bag repair') as exc:
+        dataio.load_records([empty_meta])
+    assert '\n' not in str(exc.value)
+    ts = get_typestore(Stores.LATEST)
+    f64 = ts.types['std_msgs/msg/Float64']
+    empty = tmp_path / 'empty'
+    with Writer(empty, version=9) as w:
+        w.add_connection('/damper/force', f64.__msgtype__, typestore=ts)
+    with pytest.raises(dataio.DataError, match='no messages'):
+        dataio.load_records([empty])
+    good = tmp_path / 'good'
+    t, x, v, f, i = _table(800)
+    with Writer(good, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        cs = {n: w.add_connection(n, f64.__msgtype__, typestore=ts)
+              for n in ('/damper/stroke', '/damper/force', '/damper/current_command')}
+        for k in range(t.size):
+            for name, val in (('/damper/stroke', x[k]), ('/damper/force', f[k]),
+                              ('/damper/current_command', i[k])):
+                w.write(cs[name], int(1e9 + t[k] * 1e9),
+                        ts.serialize_cdr(f64(data=float(val)), f64.__msgtype__))
+    (mcap,) = good.glob('*.mcap')
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[:len(data) // 2])
+    with pytest.raises(dataio.DataError, match=f'bag repair {good}'):
+        dataio.load_records([good])
+    (good / 'metadata.yaml').unlink()
+    with pytest.raises(dataio.DataError, match='bag repair'):
+        dataio.load_records([good])
+
+
+def test_fast_and_slow_text_readers_agree_on_vrths():
+    path = VRTHS / 'preprocessed_sine' / '5mm3Hz0x5A.txt'
+    header, fast = dataio._read_table(path)
+    slow = dataio._read_table_slow(path, None, None, 0)
+    assert header is None
+    np.testing.assert_array_equal(fast, slow)

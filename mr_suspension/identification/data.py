@@ -279,7 +279,7 @@ def build_record(name, cols, opts=None, meta=None):
     base, ft = sensors.uniform_time(t)
     gap_mask, fg = sensors.missing_rows(base)
     findings.extend(f for f in (ft, fg) if f is not None)
-    stamps = t - t[0]
+    stamps = base.stamps
     if base.resampled:
         tg = base.time
         for k in list(cols):
@@ -366,8 +366,9 @@ def _apply_units(cols, units, defaults=None):
     units = dict(defaults or {}, **(units or {}))
     out = {}
     for k, v in cols.items():
-        fac = _unit_factor(k, units[k]) if k in units else 1.0
-        out[k] = np.asarray(v, dtype=float) * fac
+        out[k] = np.asarray(v, dtype=float)
+        if k in units:
+            out[k] = out[k] * _unit_factor(k, units[k])
     return out
 
 
@@ -524,10 +525,15 @@ def load_text(path, opts=None):
         raise DataError(f'{path}: no header row; the CSV needs a header naming the columns '
                         f'({", ".join(CANONICAL)})')
     index, units = map_header(header, opts, path)
-    cols = {canon: table[:, j] for canon, j in index.items()}
     if units:
         opts = replace(opts, units={**units, **opts.units})
-    return build_record(path.name, _apply_units(cols, opts.units), opts)
+    cols = {}
+    for canon, j in index.items():
+        cols[canon] = np.array(table[:, j])          # contiguous copy; the table is freed
+        if canon in opts.units:
+            cols[canon] *= _unit_factor(canon, opts.units[canon])
+    del table
+    return build_record(path.name, cols, opts)
 
 
 def load_mat(path, opts=None):

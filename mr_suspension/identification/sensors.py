@@ -55,7 +55,7 @@ def runs(flags):
 
 def fill(x, mask):
     """``x`` with the samples where ``mask`` is False linearly interpolated from the others."""
-    if mask.all():
+    if mask.all() or not mask.any():
         return x
     idx = np.flatnonzero(mask)
     out = x.copy()
@@ -68,12 +68,14 @@ def fill(x, mask):
 class TimeBase:
     """A uniform time base: ``time`` (from 0, step ``dt``) and where the input rows sit on it.
 
-    ``index[k]`` is the grid sample of input row ``k`` (None when the rows were resampled).
+    ``stamps`` are the input stamps relative to the first; ``index[k]`` is the grid sample of
+    input row ``k`` (None when the rows were resampled).
     """
 
     time: np.ndarray
     dt: float
     index: np.ndarray = None
+    stamps: np.ndarray = None
 
     @property
     def resampled(self):
@@ -116,34 +118,37 @@ def uniform_time(t):
         d1 = float(np.mean(dts[m == 1]))
         m = np.maximum(np.rint(dts / d1), 1.0)
     k = np.concatenate(([0.0], np.cumsum(m)))
-    kc = k - k.mean()
-    dt = float(np.dot(kc, rel - rel.mean()) / np.dot(kc, kc))
-    a = float(rel.mean() - dt * k.mean())
-    res = rel - (a + dt * k)
-    rmax = float(np.max(np.abs(res)))
-    slop = 8 * np.finfo(float).eps * max(abs(t[0]), abs(t[-1])) + 1e-15
-    gaps = bool(np.any(m > 1))
+    del m
+    km, rm = float(k.mean()), float(rel.mean())
+    kc = k - km
+    dt = float(np.dot(kc, rel - rm) / np.dot(kc, kc))
+    del kc
+    a = rm - dt * km
+    rmax = float(np.max(np.abs(rel - (a + dt * k))))
     index = k.astype(np.int64)
+    del k
+    slop = 8 * np.finfo(float).eps * max(abs(t[0]), abs(t[-1])) + 1e-15
+    gaps = bool(index[-1] + 1 > index.size)
     if rmax <= 1e-3 * dt + slop:
         if not gaps:
-            return TimeBase(rel, d0, index), None
-        return TimeBase(dt * np.arange(index[-1] + 1), dt, index), None
-    q, nvals = _quantum(dts[m == 1], slop)
+            return TimeBase(rel, d0, index, rel), None
+        return TimeBase(dt * np.arange(index[-1] + 1), dt, index, rel), None
+    q, nvals = _quantum(dts[np.diff(index) == 1], slop)
     grid = dt * np.arange(index[-1] + 1)
     if q is not None and q < dt and rmax <= q + 4 * slop:
-        return TimeBase(grid, dt, index), finding(
+        return TimeBase(grid, dt, index, rel), finding(
             'stamp_rounding', 'time', 'corrected',
             f'time stamps are rounded to {q:.3g} s (steps take {nvals} values, residuals from '
             f'a uniform {1 / dt:.6g} Hz line within {rmax:.3g} s); the uniform grid '
             f'dt = {dt:.9g} s is used, no resampling', quantum=q, dt=dt, max_residual=rmax)
     if rmax <= 0.1 * dt:
-        return TimeBase(grid, dt, index), finding(
+        return TimeBase(grid, dt, index, rel), finding(
             'stamp_jitter', 'time', 'corrected',
             f'time stamps jitter by up to {rmax:.3g} s ({100 * rmax / dt:.1f} % of the '
             f'{dt:.6g} s step) around a uniform line; the uniform grid is used',
             dt=dt, max_residual=rmax)
     grid = d0 * np.arange(int(math.ceil(rel[-1] / d0 - 1e-9)) + 1)
-    return TimeBase(grid, d0, None), finding(
+    return TimeBase(grid, d0, None, rel), finding(
         'irregular_sampling', 'time', 'corrected',
         f'irregular sampling (steps {dts.min():.3g}..{dts.max():.3g} s, {rmax:.3g} s from any '
         f'uniform line); resampled to a uniform {d0:.3g} s grid by linear interpolation',
@@ -250,6 +255,8 @@ def clipping(name, x, consistent=None):
     if not ok.any():
         return mask, None
     hi, lo = float(np.max(x[ok])), float(np.min(x[ok]))
+    if hi == lo:
+        return mask, None        # a constant channel is judged by the caller, not masked
     held = _held_runs(x, consistent)
     rails = sorted({v for _, _, v in held if v in (hi, lo)})
     if not rails:
@@ -280,7 +287,7 @@ def dropouts(name, x, consistent=None, frozen=True, exclude=None):
     held = []
     xs = x if exclude is None else np.where(exclude, np.nan, x)
     ok = np.isfinite(xs)
-    if frozen and ok.any():
+    if frozen and ok.any() and np.ptp(xs[ok]) > 0:
         hi, lo = float(np.max(xs[ok])), float(np.min(xs[ok]))
         held = [(s, ln) for s, ln, v in _held_runs(xs, consistent) if v not in (hi, lo)]
     frozen = held
