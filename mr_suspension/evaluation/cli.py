@@ -329,7 +329,10 @@ def main(argv=None):
         argv = ['evaluate'] + argv
     args = parser.parse_args(argv)
     from mr_suspension.cli import run_command  # one-line errors, exit code 2
-    return run_command(args)
+    code = run_command(args)
+    if code:
+        raise SystemExit(code)  # as argparse's own errors: the caller exits with the code
+    return 0
 
 
 if __name__ == '__main__':
