@@ -17,12 +17,7 @@ HERE = Path(__file__).resolve().parent / 'malformed'
 # is being reworked by another engineer); each must stay free of tracebacks and hangs, and is
 # listed by the summary. Remove an entry once it passes.
 KNOWN_OPEN = {
-    'csv_constant_force': 'data.py: "array of sample points is empty" instead of "constant"',
-    'csv_no_motion': 'data.py: "array of sample points is empty" instead of "no motion"',
     'mat_string_force': 'data.py: "could not convert string to float" without the variable',
-    'bag_zero_byte_db3': 'data.py: reader message without the bag path or repair hint',
-    'bag_garbage_mcap': 'data.py: "Unexpected record." without the bag or repair hint',
-    'bag_truncated_mcap': 'data.py: "File end magic is invalid." without bag or repair hint',
     'csv_no_current_variation': 'diagnose: constant current, exit 0 without a warning that the '
                                 'current dependence (c1, fy1) is not identifiable',
     'csv_zero_current': 'diagnose: zero current throughout, exit 0 without a warning',
