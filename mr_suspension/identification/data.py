@@ -24,7 +24,6 @@ import numpy as np
 from scipy import io as sio
 from scipy import signal
 
-from mr_suspension.core.driver import DriverParams, static_current
 
 CANONICAL = ('time', 'displacement', 'velocity', 'force', 'current_command', 'voltage_command',
              'current', 'temperature')
@@ -257,7 +256,7 @@ def build_record(name, cols, opts=None, meta=None):
         ok = np.isfinite(y)
         if not ok.any():
             raise DataError(f'{name}: every {k} value is NaN/inf')
-        good = ok.copy()
+        good = ok
         fnd = fs = fc = None
         if k in SET_CHANNELS:
             # set values (and a coil current following them) legitimately hold: NaN runs only
@@ -273,8 +272,9 @@ def build_record(name, cols, opts=None, meta=None):
             mc, fc = sensors.clipping(k, np.where(ms, y, np.nan), still.get(k))
             good &= ms & mc
         _check_nan_budget(k, name, fnd, n)
-        cols[k] = sensors.fill(np.where(good, y, 0.0), good)
-        row_mask &= good
+        if not good.all():
+            cols[k] = sensors.fill(np.where(good, y, 0.0), good)
+            row_mask &= good
         findings.extend(f for f in (fnd, fs, fc) if f is not None)
     base, ft = sensors.uniform_time(t)
     gap_mask, fg = sensors.missing_rows(base)
@@ -344,6 +344,8 @@ def build_record(name, cols, opts=None, meta=None):
         command = cols['current_command']
         kind = 'current_command'
     elif 'voltage_command' in cols:
+        from mr_suspension.core.driver import DriverParams, static_current  # numba: lazily
+
         volt = cols['voltage_command']
         dp = DriverParams().to_array()
         command = np.array([static_current(dp, float(u)) for u in volt])

@@ -125,7 +125,7 @@ def uniform_time(t):
     del kc
     a = rm - dt * km
     rmax = float(np.max(np.abs(rel - (a + dt * k))))
-    index = k.astype(np.int64)
+    index = k.astype(np.int32 if k[-1] < 2 ** 31 - 1 else np.int64)
     del k
     slop = 8 * np.finfo(float).eps * max(abs(t[0]), abs(t[-1])) + 1e-15
     gaps = bool(index[-1] + 1 > index.size)
