@@ -20,7 +20,8 @@ ROAD = '{type: bump, height: 0.05, length: 2.0, speed: 10.0}'
 def test_node_set_processes_agree_with_offline(tmp_path, lockstep, delay, tol):
     """Exact lock-step to round-off; one-sample coupling and real time within 2 %."""
     res = run_node_set(tmp_path / 'run', duration=1.0, road=ROAD, controller='passive_1A',
-                       lockstep=lockstep, timeout=90.0, coupling_delay=delay)
+                       lockstep=lockstep, timeout=90.0, coupling_delay=delay,
+                       domain_id='random')
     assert res['returncodes'] == {'recorder': 0, 'controller': 0, 'actuator': 0, 'plant': 0}
     counts = res['summary']['counts']
     published = res['stats']['plant']['published']

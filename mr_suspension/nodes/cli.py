@@ -50,7 +50,8 @@ def cmd_nodes(args):
     res = run_node_set(out, duration=args.duration, road=road_spec(args), vehicle=args.vehicle,
                        damper=args.damper, driver=args.driver, controller=args.controller,
                        lockstep=not args.realtime, rate=args.rate, storage=args.storage,
-                       namespace=args.namespace, coupling_delay=args.coupling_delay)
+                       namespace=args.namespace, coupling_delay=args.coupling_delay,
+                       domain_id='random' if args.isolate else None)
     text = format_result(res)
     (out / 'summary.md').write_text(text + '\n', encoding='utf-8')
     (out / 'result.json').write_text(json.dumps(res, indent=1, default=str), encoding='utf-8')
@@ -104,5 +105,7 @@ def register(subparsers):
                         "offline simulator's step order exactly)")
     p.add_argument('--storage', default='mcap', choices=['mcap', 'sqlite3'])
     p.add_argument('--namespace', default='front_left', help='corner namespace')
+    p.add_argument('--isolate', action='store_true',
+                   help='run on a random ROS_DOMAIN_ID (1..100) instead of yours')
     p.set_defaults(func=cmd_nodes)
     return p

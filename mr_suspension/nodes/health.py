@@ -2,7 +2,8 @@
 
 :class:`Health` holds a node's active faults and its fallback state: it logs one line on
 entering the fallback and one on leaving it (never per message), leaves only after the inputs
-have been healthy for ``recovery_time`` (no flapping; at start-up at once) and publishes
+have been healthy for ``recovery_time`` (no flapping; at start-up at once), adds one line if a
+worse fault (ERROR) joins a fallback that is already on, and publishes
 ``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` on every change and every ``period``.
 
 :class:`PeerCheck` is the start-up agreement: when a peer node (``plant``, ``controller``,
@@ -41,6 +42,8 @@ class Health:
         self.recovery_time = recovery_time
         self.period = period
         self.values = values or (lambda: ())
+        # The node's clock (monotonic seconds), looked up per call: a test may swap it.
+        self.clock = lambda: getattr(node, 'clock', time.monotonic)()
         self.log = node.get_logger()
         self.label = node.get_name()
         self.faults = {}  # key -> (level, reason)
@@ -61,11 +64,17 @@ class Health:
 
     def set(self, key, level, reason, now=None):  # noqa: A003 - the natural name
         """Activate (or update) fault ``key``; enter the fallback if not in it (one log line)."""
-        now = time.monotonic() if now is None else now
+        now = self.clock() if now is None else now
         known = self.faults.get(key)
+        worst = self.level()
         self.faults[key] = (level, reason)
         self.clear_since = None
-        if not self.fallback:
+        if self.fallback and level > worst:
+            # A worse fault joins a fallback already on (e.g. a peer mismatch while waiting
+            # for sensors): one more line, or it would never be told.
+            self.log.error(f'{self.label}: {reason} (in fallback: {self.action})')
+            self.publish(now)
+        elif not self.fallback:
             self.fallback = True
             self.entered = now
             self.episodes += 1
@@ -82,7 +91,7 @@ class Health:
         """Deactivate fault ``key``; the fallback ends ``recovery_time`` after the last one."""
         if key not in self.faults:
             return
-        now = time.monotonic() if now is None else now
+        now = self.clock() if now is None else now
         del self.faults[key]
         if not self.faults:
             self.clear_since = now
@@ -90,7 +99,7 @@ class Health:
 
     def tick(self, now=None, publish=False):
         """Leave the fallback when due; publish the status when due (every ``period``)."""
-        now = time.monotonic() if now is None else now
+        now = self.clock() if now is None else now
         if self.fallback and not self.faults:
             hold = self.recovery_time if self.started else 0.0
             if now - self.clear_since >= hold:
@@ -120,7 +129,7 @@ class Health:
 
     def publish(self, now=None):
         """Publish the status on ``/diagnostics``."""
-        now = time.monotonic() if now is None else now
+        now = self.clock() if now is None else now
         self.last_pub = now
         status = DiagnosticStatus(level=self.level(), name=self.name,
                                   message=self.message(now), hardware_id=self.hardware_id)

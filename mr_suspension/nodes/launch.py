@@ -85,12 +85,33 @@ def agreement(nodes, offline):
             if k in nodes and offline[k] != 0.0}
 
 
-def _env(domain_id):
-    """Environment of a node-set process: this one's, prepared for rclpy, on ``domain_id``."""
+def resolve_domain(domain_id=None):
+    """Return the ``ROS_DOMAIN_ID`` for a node set: None keeps the user's, 'random' isolates.
+
+    ``None``: the environment's ``ROS_DOMAIN_ID`` (unset: ROS's default, 0), so the node set is
+    visible to the user's ``ros2`` tools; ``'random'``: a random domain in 1..100, for tests
+    and benchmarks that must not see other graphs; an int: that domain.
+    """
+    if domain_id is None:
+        return None
+    if domain_id == 'random':
+        return random.Random(os.getpid() ^ time.time_ns()).randint(1, 100)
+    domain = int(domain_id)
+    if not 0 <= domain <= 232:
+        raise ValueError(f'domain id must be in 0..232, got {domain}')
+    return domain
+
+
+def _env(domain_id=None):
+    """Environment of a node-set process: this one's, prepared for rclpy, on ``domain_id``.
+
+    ``domain_id`` None keeps the environment's ``ROS_DOMAIN_ID`` (or its absence).
+    """
     from mr_suspension.nodes.common import ensure_environment
     ensure_environment()  # also the Fast DDS profile, config/fastdds.xml
     env = dict(os.environ)
-    env['ROS_DOMAIN_ID'] = str(domain_id)
+    if domain_id is not None:
+        env['ROS_DOMAIN_ID'] = str(domain_id)
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     if env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'OFF':
         env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
@@ -124,7 +145,8 @@ def run_node_set(out_dir, duration=3.0, road=DEFAULT_ROAD, vehicle='city_car',
 
     ``coupling_delay`` (lock-step; plant and actuator, default from ``config/nodes``: 1; 0 =
     the simulator's step order exactly). ``extra`` maps node name -> dict of further
-    parameters. Returns a dict with ``bag`` (path or
+    parameters. ``domain_id``: None (default) runs on the user's ``ROS_DOMAIN_ID``, 'random'
+    on an isolated random domain (tests), or an int. Returns a dict with ``bag`` (path or
     None), ``summary`` (read back from the bag), ``offline`` (simulator), ``agreement`` [%],
     ``stats`` per node, ``returncodes`` and ``wall_s``.
     """
@@ -153,9 +175,7 @@ def run_node_set(out_dir, duration=3.0, road=DEFAULT_ROAD, vehicle='city_car',
     param_file = out / 'params.yaml'
     with open(param_file, 'w', encoding='utf-8') as fh:
         yaml.safe_dump({f'/**/{n}': {'ros__parameters': params[n]} for n in nodes}, fh)
-    if domain_id is None:
-        domain_id = random.Random(os.getpid() ^ time.time_ns()).randint(1, 100)
-    env = _env(domain_id)
+    env = _env(resolve_domain(domain_id))
     procs = {}
     t0 = time.monotonic()
     limit = timeout if timeout is not None else 60.0 + 20.0 * duration
