@@ -14,6 +14,7 @@ resolve to the simpler one. Effects that the excitation cannot reveal are ``unte
 
 from dataclasses import dataclass
 
+from numba import njit
 import numpy as np
 
 from mr_suspension.identification import data as dataio
@@ -26,6 +27,7 @@ MAX_CAUSES = 3
 SEARCH_RATE = 250.0
 JOINT_FEV = 20
 CLEAR_LOSS = 0.6
+SCREEN_FIXED = ()  # parameters screening fits keep at the parent's value (none: see docs)
 PARTLY_FACTOR = 2.0  # extended held-out NRMSE above this many noise floors: partly explained
 UPGRADE = 'current_lag->current_lag_asymmetric'
 NESTED = {('current_lag', 'current_lag_asymmetric')}
@@ -131,6 +133,24 @@ def testability(records):
     return sorted(set(untestable), key=engine.ALL_EFFECTS.index), notes
 
 
+@njit(cache=True)
+def _shift_errors(i, y, nds):
+    """Sum of squared errors of ``i`` against ``y`` delayed by each of ``nds`` samples."""
+    n = i.shape[0]
+    out = np.empty(nds.shape[0])
+    for j in range(nds.shape[0]):
+        nd = nds[j]
+        if nd >= n:
+            out[j] = np.inf
+            continue
+        acc = 0.0
+        for k in range(n):
+            e = i[k] - (y[k - nd] if k >= nd else y[0])
+            acc += e * e
+        out[j] = acc
+    return out
+
+
 def _driver_error(recs, dead, tr, tf):
     err = 0.0
     for r in recs:
@@ -161,13 +181,8 @@ def identify_driver(records, nominal=None):
             errs = np.zeros(deads.size)
             for r in recs:
                 y = engine.field_current(r.command, r.dt, 0.0, tr, tf)
-                for j, d in enumerate(deads):
-                    nd = int(d / r.dt + 0.5)
-                    if nd >= r.n:
-                        errs[j] = np.inf
-                        continue
-                    yy = np.concatenate([np.full(nd, y[0]), y[:r.n - nd]])
-                    errs[j] += float(np.sum((r.i_in - yy) ** 2))
+                nds = (deads / r.dt + 0.5).astype(np.int64)
+                errs += _shift_errors(r.i_in, y, nds)
             j = int(np.argmin(errs))
             if errs[j] < best[0]:
                 best = (errs[j], deads[j], tr, tf)
@@ -277,7 +292,7 @@ def _children(ds, chosen, candidates, current, tick):
         if e in chosen or not _compatible(chosen, e):
             continue
         pool[e] = engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
-                             start_theta=current.theta, new=(e,), sweeps=1)
+                             start_theta=current.theta, new=(e,), sweeps=1, fixed=SCREEN_FIXED)
         tick('+'.join(list(chosen) + [e]))
     # Screening done with one sweep; the two most promising children get a second one.
     for e in sorted(pool, key=lambda k: pool[k].sse)[:2]:
@@ -441,7 +456,7 @@ def _forward(ds, base, sensors, physics, tick):
     singles = {}
     for e in physics:
         singles[e] = engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
-                                start_theta=current.theta, new=(e,))
+                                start_theta=current.theta, new=(e,), fixed=SCREEN_FIXED)
         tick(e)
     candidates = list(physics) + [e for e in sensors if e not in chosen]
     stage_amb = []

@@ -269,10 +269,11 @@ def design(ds, effects, eta, theta_prev):
 
 
 def _solve(g, h):
-    d = np.sqrt(np.maximum(np.diag(g), 1e-300))
-    gs = g / d[:, None] / d[None, :]
-    gs = gs + 1e-10 * np.eye(g.shape[0])
-    return np.linalg.solve(gs, h / d) / d
+    """Solve ``g theta = h`` (stacked over a leading axis), equilibrated and regularised."""
+    d = np.sqrt(np.maximum(np.diagonal(g, axis1=-2, axis2=-1), 1e-300))
+    gs = g / d[..., :, None] / d[..., None, :]
+    gs = gs + 1e-10 * np.eye(g.shape[-1])
+    return np.linalg.solve(gs, (h / d)[..., None])[..., 0] / d
 
 
 class CVResult:
@@ -308,17 +309,19 @@ class CVResult:
             nk[f] = yf.size
         gt, ht, et = gk.sum(0), hk.sum(0), ek.sum()
         self.eta = dict(eta)
-        self.theta = _solve(gt, ht)
+        # All data and the K training sets (all but fold k) in one batched solve.
+        gs = np.concatenate([gt[None], gt[None] - gk])
+        hs = np.concatenate([ht[None], ht[None] - hk])
+        th = _solve(gs, hs)
+        self.theta = th[0]
         self.sse = float(et - 2 * self.theta @ ht + self.theta @ gt @ self.theta)
         self.n = nk
-        self.theta_k = np.empty((k, p))
-        self.train = np.empty(k)
-        self.test = np.empty(k)
-        for f in range(k):
-            th = _solve(gt - gk[f], ht - hk[f])
-            self.theta_k[f] = th
-            self.test[f] = ek[f] - 2 * th @ hk[f] + th @ gk[f] @ th
-            self.train[f] = (et - ek[f]) - 2 * th @ (ht - hk[f]) + th @ (gt - gk[f]) @ th
+        tk = th[1:]
+        self.theta_k = tk
+        quad = np.einsum('ki,kij,kj->k', tk, gk, tk)
+        self.test = ek - 2 * np.einsum('ki,ki->k', tk, hk) + quad
+        self.train = ((et - ek) - 2 * np.einsum('ki,ki->k', tk, hs[1:])
+                      + np.einsum('ki,kij,kj->k', tk, gs[1:], tk))
 
 
 class FitResult:
@@ -382,7 +385,7 @@ def _search_order(effects, new):
 
 
 def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, joint=0,
-        local=(0.6, 0.8, 1.0, 1.25, 1.6)):
+        local=(0.6, 0.8, 1.0, 1.25, 1.6), fixed=()):
     """Fit one model by coordinate search over ``eta`` with linear ``theta`` at every point.
 
     ``start_eta``/``start_theta`` warm-start from a parent model; ``new`` are the effects
@@ -516,7 +519,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                 base_eta[n] = neutral_eta()[n]
         theta[:5] = CVResult(ds, design(ds, (), base_eta, theta), base_eta).theta[:5]
     ev(dict(eta))
-    names = _search_order(effects, new)
+    names = [n for n in _search_order(effects, new) if n not in fixed]
     warm = start_eta is not None and len(new) < len(effects)
     if sweeps is None:
         sweeps = 2 if (len(names) > 1 or force_dep) and (not warm or new) else 1
