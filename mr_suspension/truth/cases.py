@@ -1,0 +1,117 @@
+"""Ready-made benchmark cases: a drawn damper on a drawn rig, measured by drawn sensors.
+
+``make_case(seed, ...)`` draws, from independent streams of ``seed``: the truth
+(``rig.draw_truth``) and the sensor spec (``sensors.draw_sensor``), which belong to the damper
+and the rig, and, per ``record`` index, the programme and the noise. ``record=1, 2, ...`` (or
+``Case.unseen()``) is therefore the same damper on the same rig under another programme and
+noise: an unseen record for validation. Every record starts with a cold damper.
+"""
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mr_suspension.truth import rig, sensors
+
+COLUMN_ORDER = ('time', 'displacement', 'velocity', 'force', 'current_command', 'current')
+
+
+@dataclass(frozen=True, eq=False)
+class Case:
+    """One synthetic rig record with its truth.
+
+    ``columns`` (package column names, SI, rows as written), ``truth`` (``rig.RigTruth``),
+    ``clean_force`` (noise-free force at the kept rows), ``reference_force`` (the same through
+    the force channel's delay or filter), ``sensor`` (``{'spec': SensorSpec, 'info': dict}``),
+    ``floor_nrmse``, ``noise_rms`` [N], ``contributions`` (per effect, RMS of its force
+    contribution / ``noise_rms``), ``contributions_n`` (the same in N),
+    ``driver_contribution`` (ideal vs real driver, / ``noise_rms``), ``clean`` (every
+    ``rig.simulate`` output at all samples), ``args`` (to regenerate).
+    """
+
+    seed: int
+    record: int
+    columns: dict
+    truth: rig.RigTruth
+    clean_force: np.ndarray
+    reference_force: np.ndarray
+    sensor: dict
+    floor_nrmse: float
+    noise_rms: float
+    contributions: dict
+    contributions_n: dict
+    driver_contribution: float
+    clean: dict = field(repr=False)
+    args: dict = field(repr=False)
+
+    @property
+    def effects(self):
+        """Effects present in the truth."""
+        return self.truth.effects
+
+    def write_csv(self, path):
+        """Write the columns as a CSV with a header (``nan`` for dropouts); return the path."""
+        path = Path(path)
+        names = [c for c in COLUMN_ORDER if c in self.columns]
+        table = np.column_stack([self.columns[c] for c in names])
+        np.savetxt(path, table, delimiter=',', header=','.join(names), comments='',
+                   fmt='%.10g')
+        return path
+
+    def unseen(self, record=None, duration=None, kind=None):
+        """Return the same damper on the same rig under another programme and noise.
+
+        ``record`` defaults to this record + 1.
+        """
+        args = dict(self.args)
+        args['record'] = self.record + 1 if record is None else int(record)
+        if duration is not None:
+            args['duration'] = duration
+        if kind is not None:
+            args['kind'] = kind
+        return make_case(**args)
+
+
+def _rng(seed, *tags):
+    return np.random.default_rng([int(seed), *tags])
+
+
+def make_case(seed, effects=(), sensor_faults=(), duration=20.0, rate=1000.0, kind='full',
+              shape=None, strength=None, measured_current=None, record=0, sensor_clean=False,
+              substeps=10, i_max=1.0, driver_tau=None, current_site='field'):
+    """Draw a case (see the module docstring); ``sensor_faults=None`` draws 0-3 faults.
+
+    ``effects`` and ``shape``/``strength``/``driver_tau``/``current_site`` go to
+    ``rig.draw_truth``; ``kind``, ``duration`` [s], ``rate`` [Hz] to ``rig.programme``;
+    ``sensor_faults``, ``sensor_clean`` and ``measured_current`` (None = random) to
+    ``sensors.draw_sensor``.
+    """
+    if int(seed) != seed or seed < 0:
+        raise ValueError(f'make_case: seed must be a non-negative integer, got {seed}')
+    if int(record) != record or record < 0:
+        raise ValueError(f'make_case: record must be a non-negative integer, got {record}')
+    args = {'seed': int(seed), 'effects': tuple(effects),
+            'sensor_faults': None if sensor_faults is None else tuple(sensor_faults),
+            'duration': duration, 'rate': rate, 'kind': kind, 'shape': shape,
+            'strength': strength, 'measured_current': measured_current, 'record': int(record),
+            'sensor_clean': sensor_clean, 'substeps': substeps, 'i_max': i_max,
+            'driver_tau': driver_tau, 'current_site': current_site}
+    truth = rig.draw_truth(_rng(seed, 1), effects, shape=shape, strength=strength, i_max=i_max,
+                           driver_tau=driver_tau, current_site=current_site)
+    spec = sensors.draw_sensor(_rng(seed, 2), faults=sensor_faults, clean=sensor_clean,
+                               rate=rate, measured_current=measured_current)
+    t, x, i_cmd = rig.programme(_rng(seed, 3, record), duration, rate, kind, i_max=i_max)
+    clean = rig.simulate(truth, t, x, i_cmd, substeps)
+    cols, info = sensors.apply(_rng(seed, 4, record), t, clean, spec)
+    contrib = rig.contributions(truth, t, x, i_cmd, substeps, base=clean)
+    drv = rig.driver_contribution(truth, t, x, i_cmd, substeps, base=clean)
+    nr = info['noise_rms']
+    scale = nr if nr > 0 else float('nan')
+    rows = info['rows']
+    return Case(seed=int(seed), record=int(record), columns=cols, truth=truth,
+                clean_force=clean['force'][rows], reference_force=info['reference_force'],
+                sensor={'spec': spec, 'info': info}, floor_nrmse=info['floor_nrmse'],
+                noise_rms=nr, contributions={k: v / scale for k, v in contrib.items()},
+                contributions_n=contrib, driver_contribution=drv / scale, clean=clean,
+                args=args)
