@@ -20,6 +20,7 @@ import os
 from pathlib import Path
 import shutil
 import sqlite3
+import threading
 import time
 
 from mcap.reader import make_reader
@@ -143,13 +144,20 @@ class BagWriter:
         self.end = None
         self.pending_start = None  # first log time since the last flush
         self.flushes = 0
+        self.flush_max_s = 0.0  # longest flush (the caller waits for it)
         self.closed = False
+        self._sync = None
         if storage == 'mcap':
             self._fh = open(self.file, 'xb')
             self._mcap = McapWriter(self._fh, chunk_size=CHUNK_BYTES,
                                     compression=CompressionType.NONE)
             self._mcap.start(profile='ros2', library=LIBRARY)
             self._schemas = {}
+            if self.fsync:  # fsync in a thread of its own: a slow disk does not stall writing
+                self._sync = (threading.Event(), [False])
+                self._sync_thread = threading.Thread(target=self._sync_loop, daemon=True,
+                                                     name='bag_fsync')
+                self._sync_thread.start()
         else:
             self._db = sqlite3.connect(str(self.file), isolation_level=None,
                                        check_same_thread=False)
@@ -214,14 +222,20 @@ class BagWriter:
         return True
 
     def flush(self, now=None):
-        """Make everything written so far durable; rewrite metadata.yaml when it is due."""
+        """Make everything written so far durable; rewrite metadata.yaml when it is due.
+
+        MCAP: the chunk in progress is closed and handed to the operating system (a killed
+        process loses nothing after this), then fsynced by a background thread (survives a
+        power loss too). sqlite3: a commit.
+        """
         now = time.monotonic() if now is None else now
+        t0 = time.perf_counter()
         self.last_flush = now
         if self.pending_start is not None:
             if self.storage == 'mcap':
                 self._mcap.flush()  # closes the chunk in progress and flushes the stream
-                if self.fsync:
-                    os.fsync(self._fh.fileno())
+                if self._sync is not None:
+                    self._sync[0].set()
             else:
                 self._db.execute('COMMIT')
                 self._db.execute('BEGIN')
@@ -229,6 +243,20 @@ class BagWriter:
             self.flushes += 1
         if now - self.last_metadata >= self.metadata_period:
             self.write_metadata()
+        self.flush_max_s = max(self.flush_max_s, time.perf_counter() - t0)
+
+    def _sync_loop(self):
+        wanted, stop = self._sync
+        fd = self._fh.fileno()
+        while True:
+            wanted.wait()
+            wanted.clear()
+            if stop[0]:
+                return
+            try:
+                os.fsync(fd)
+            except OSError:
+                return
 
     def write_metadata(self):
         """Rewrite ``metadata.yaml`` (atomically) with the counts and times so far."""
@@ -248,6 +276,10 @@ class BagWriter:
         meta = metadata(self.storage, [(self.file.name, start, end, self.count)], self.topics)
         info = yaml.safe_dump(meta['rosbag2_bagfile_information'], sort_keys=False)
         if self.storage == 'mcap':
+            if self._sync is not None:
+                self._sync[1][0] = True
+                self._sync[0].set()
+                self._sync_thread.join()
             self._mcap.add_metadata('rosbag2', {'serialized_metadata': info})
             self._mcap.finish()
             self._fh.flush()

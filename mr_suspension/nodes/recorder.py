@@ -243,6 +243,7 @@ class RecorderNode(Node):
         self.stats.data.update(path=str(self.path), counts=self.counts,
                                repeated_dropped=self.repeated, flushes=self.writer.flushes,
                                after_stop=self.after_stop,
+                               flush_max_s=self.writer.flush_max_s,
                                niceness=os.getpriority(os.PRIO_PROCESS, 0))
         self.stats.write()
 
