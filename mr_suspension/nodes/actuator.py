@@ -151,7 +151,8 @@ class ActuatorNode(Node):
             'controller': [('rate', True), ('lockstep', True), ('vehicle', False),
                            ('damper', False), ('driver', False)]})
         if self.lockstep:
-            self.create_timer(diagnostic_period, self.health.tick, clock=health.steady_clock())
+            self.create_timer(diagnostic_period, lambda: self.health.tick(),
+                              clock=health.steady_clock())
         else:
             self.health.set('command', WARN, 'no valid command yet')
             self.health.set('motion', WARN, 'no motion sample yet')

@@ -44,6 +44,10 @@ from mr_suspension.nodes import cdr, common, contract as c, health
 from mr_suspension.nodes.health import WARN
 
 NODE = 'controller'
+# Frozen-sensor check with frozen_requires_motion: a sensor counts as moving when its value
+# changed by more than this within frozen_timeout (1 mg, 10 um). A simulated corner at rest
+# changes by round-off only (1e-15 m/s^2, 1e-19 m), which is no motion.
+MOTION = {c.IMU_BODY: 0.01, c.IMU_WHEEL: 0.01, c.STROKE: 1e-5}
 
 
 class ControllerNode(Node):
@@ -131,6 +135,8 @@ class ControllerNode(Node):
         self.n_sensor = dict.fromkeys(self.latest, 0)
         self.last_stamp = dict.fromkeys(self.latest)
         self.changed = dict.fromkeys(self.latest, -math.inf)  # last change of the value
+        self.moved = dict.fromkeys(self.latest, -math.inf)  # last change by more than MOTION
+        self.moved_from = dict.fromkeys(self.latest)
         self.clock_event = -math.inf
         self.timer = None
         self.gate = None
@@ -146,7 +152,7 @@ class ControllerNode(Node):
         steady = health.steady_clock()
         if self.lockstep:
             self.gate = common.MatchGate(self, [(self.pub_cmd, 1 + recorders)], self._run_samples)
-            self.create_timer(diagnostic_period, self.health.tick, clock=steady)
+            self.create_timer(diagnostic_period, lambda: self.health.tick(), clock=steady)
         else:
             self.health.set('stale', WARN, 'no sensor data yet')
             period = self.config.dt if self.trigger == 'timer' else self.watchdog_period
@@ -178,6 +184,11 @@ class ControllerNode(Node):
             self.last_stamp[topic] = stamp
             if value != self.latest[topic]:
                 self.changed[topic] = now
+            ref = self.moved_from[topic]
+            if math.isfinite(value) and (ref is None or abs(value - ref) > MOTION[topic]):
+                if ref is not None:  # (the first value is no motion)
+                    self.moved[topic] = now
+                self.moved_from[topic] = value
         self.latest[topic] = value
         self.arrival[topic] = now
         if self.lockstep and (stamp < self.k * self.dt_ns
@@ -272,12 +283,13 @@ class ControllerNode(Node):
     def _frozen(self, now):
         fresh = [t for t in self.latest if now - self.arrival[t] <= self.sensor_timeout]
         frozen = [t for t in fresh if now - self.changed[t] > self.frozen_timeout]
-        if self.frozen_requires_motion and len(frozen) == len(self.latest):
-            return None  # nothing changes at all: a corner at rest (exact simulated values)
-        if frozen:
-            return f'sensor value frozen for more than {self.frozen_timeout:g} s ' \
-                f'({", ".join(frozen)})'
-        return None
+        if not frozen:
+            return None
+        if self.frozen_requires_motion and not any(
+                now - self.moved[t] <= self.frozen_timeout for t in fresh if t not in frozen):
+            return None  # no other sensor moves: a corner at rest (exact simulated values)
+        return f'sensor value frozen for more than {self.frozen_timeout:g} s ' \
+            f'({", ".join(frozen)})'
 
     def _check(self, now):
         for key, reason in (('stale', self._stale(now)), ('frozen', self._frozen(now))):
