@@ -164,7 +164,7 @@ def _sweep(c, m):
     phase = 2 * np.pi * fa * (np.exp(k * tt) - 1.0) / k
     a = np.minimum(c.stroke, 0.9 * c.v_max / (2 * np.pi * f)) * rng.uniform(0.4, 1.0)
     x = a * np.sin(phase) * _taper(m, int(0.15 * c.rate))
-    return x, np.full(m, rng.choice(c.levels))
+    return x, np.full(m, rng.choice(c.levels[1:]))  # a sweep at 0 A shows no field
 
 
 _SEGMENTS = {'harmonic': _harmonic, 'steps': _steps, 'random': _random,

@@ -273,6 +273,11 @@ def _lag_chain(cmd, dt, nf, delay, tau1, tr, tf):
             u = cmd[kk] if cmd[kk] > 0.0 else 0.0
             y1, y2 = _lag_piece(u, y1, y2, te - t, tau1, tr, tf)
             t = te
+        if tau1 <= 0.0:  # no lag: the output is the held input itself (right-continuous)
+            kk = min(max(int(math.floor((tb - delay) / dt + 1e-9)), 0), n - 1)
+            y1 = cmd[kk] if cmd[kk] > 0.0 else 0.0
+            if tr <= 0.0:
+                y2 = y1
         out[j + 1] = y2
     return out
 

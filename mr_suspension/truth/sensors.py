@@ -26,7 +26,7 @@ from scipy.interpolate import CubicSpline
 
 FAULTS = ('channel_delay', 'anti_alias', 'derived_velocity', 'no_velocity', 'drift',
           'clipping', 'time_rounding', 'dropout_nan', 'dropout_hold', 'dropout_missing')
-EXCLUSIVE = ({'derived_velocity', 'no_velocity'},
+EXCLUSIVE = ({'derived_velocity', 'no_velocity'}, {'channel_delay', 'anti_alias'},
              {'dropout_nan', 'dropout_hold', 'dropout_missing'})
 VELOCITY_MODES = ('measured', 'derived', 'absent')
 DROPOUTS = ('none', 'nan', 'hold', 'missing')
@@ -137,8 +137,6 @@ def draw_sensor(rng, faults=(), clean=False, rate=1000.0, measured_current=None)
     if 'channel_delay' in faults:
         d['force_delay'] = rng.uniform(0.3e-3, 5e-3) * rng.choice([-1.0, 1.0])
     if 'anti_alias' in faults:
-        if 'channel_delay' in faults:
-            raise ValueError('draw_sensor: channel_delay and anti_alias exclude each other')
         d['force_filter_hz'] = rng.uniform(0.1, 0.35) * rate
     if 'derived_velocity' in faults:
         d['velocity'] = 'derived'
