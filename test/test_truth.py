@@ -349,7 +349,7 @@ def test_velocity_current_and_dropout_variants():
 
 def test_draw_sensor_clean_and_faults():
     rng = np.random.default_rng(0)
-    spec = sensors.draw_sensor(rng, clean=True)
+    spec = sensors.draw_sensor(rng, faults=None, clean=True)
     assert spec.faults == () and spec.force_delay == 0 and spec.clip_fraction == 0
     assert spec.displacement_noise == 0 and spec.dropout == 'none'
     assert spec.force_white > 0 and spec.force_ar > 0

@@ -99,6 +99,8 @@ class SensorSpec:
 def draw_sensor(rng, faults=(), clean=False, rate=1000.0, measured_current=None):
     """Draw a ``SensorSpec`` with the named ``faults`` (``FAULTS``; None = 0-3 random ones).
 
+    ``clean=True`` draws no fault (``faults`` must then be empty or None).
+
     Always: white (0.2-1 %) and AR(1) (0.5-2.5 %, 2-20 ms) force noise. Unless ``clean``:
     displacement noise 1-10 um, velocity noise 0.5-2 %, current noise 2-10 mA. Faults:
     ``channel_delay`` +-0.3-5 ms, ``anti_alias`` cut-off 0.1-0.35 ``rate``, ``drift``
@@ -106,6 +108,8 @@ def draw_sensor(rng, faults=(), clean=False, rate=1000.0, measured_current=None)
     ``time_rounding`` to 0.2-0.45 of the period, dropouts 0.1-0.8 % in runs of <= 20.
     ``measured_current`` None draws it (p = 0.5).
     """
+    if faults is None and clean:
+        faults = ()
     if faults is None:
         k = int(rng.integers(0, 4))
         pool = list(FAULTS)
