@@ -17,10 +17,11 @@ TRUTH_KEYS = {
     'gas_spring': lambda d, p: {'k_gas1': p.k_gas1, 'k_gas2': p.k_gas2},
     'thermal_fade': lambda d, p: {'kappa': p.kappa},
     'direction_asymmetry': lambda d, p: {'rho': p.rho},
+    'yield_shape': lambda d, p: {'yield_n': p.yield_n},
 }
 ABS_TOL = {'dead_time': 0.002, 'tau_rise': 0.003, 'rho': 0.03}
 REL_TOL = {'tau': 0.15, 'tau_fall': 0.2, 'i_sat': 0.2, 'x_h': 0.25, 'k_series': 0.3,
-           'k_gas1': 0.25, 'k_gas2': 0.35, 'kappa': 0.3}
+           'k_gas1': 0.25, 'k_gas2': 0.35, 'kappa': 0.3, 'yield_n': 0.25}
 
 
 def _diagnose(effects, seed, kind='full'):

@@ -6,7 +6,8 @@ Force (stroke ``x``, + = extension; stroke rate ``v``; field current ``i``)::
     F_d = M(u) [c(i) u + Fy(i) y(u)]                      (damping element, seed 003 eq. 5.2)
     c(i) = c0 + c1 i,  Fy(i) = fy0 + fy1 g(i),  g(i) = i_s tanh(i / i_s)   (saturation)
     M(u) = (1 - kappa E) (1 + rho tanh(u / v_y))          (thermal fade, direction asymmetry)
-    y(u) = tanh(u / v_y), or the Dahl state ``dz/dx_d = (1 - z sgn u) / x_h`` (hysteresis)
+    y(u) = tanh(u / v_y), or the Dahl state ``dz/dx_d = (1 - z sgn u) / x_h`` (hysteresis),
+           or w / (1 + |w|^n)^(1/n), w = u / v_y (yield shape, exponent n = yield_n)
     dF_d/dt = k1 (v - u)                                  (series stiffness k1, seed 000 Fig. 7)
     dE/dt = F_d u - E / tau_th                            (stored heat from dissipated energy)
 
@@ -34,7 +35,7 @@ from mr_suspension.core.validation import as_number, build, check_declared, para
 EXT_NSTATE = 7
 S_Z, S_FD, S_E, S_U, S_Y, S_M, S_G = range(7)
 (P_F0, P_C0, P_C1, P_FY0, P_FY1, P_VY, P_ISAT, P_XH, P_K1, P_KG1, P_KG2, P_KAPPA, P_TAUTH,
- P_RHO) = range(14)
+ P_RHO, P_YN) = range(15)
 RHO_MAX = 0.5
 
 
@@ -47,7 +48,9 @@ class ExtendedDamperParams:
     pre-yield length (0 = off, smooth tanh); ``k_series`` [N/m] series stiffness (0 = rigid);
     ``k_gas1`` [N/m], ``k_gas2`` [N/m^2] gas spring; ``kappa`` [1/J] fade per stored heat
     (0 = off), ``tau_thermal`` [s] cooling time constant; ``rho`` [-] rebound/compression
-    asymmetry, ``|rho| <= 0.5``.
+    asymmetry, ``|rho| <= 0.5``; ``yield_n`` [-] exponent of the algebraic yield sigmoid
+    ``w / (1 + |w|^n)^(1/n)`` instead of ``tanh(w)`` (0 = off: n = 2 is the algebraic sigmoid,
+    n near 1 a slow arctan-like tail, large n a sharp Bingham corner).
     """
 
     # Very wide ranges: the diagnosis fit must be able to represent any real damper; they only
@@ -66,6 +69,8 @@ class ExtendedDamperParams:
     kappa: float = param(0.0, 0.0, 1.0e6, '1/J', 'thermal fade per stored heat')
     tau_thermal: float = param(600.0, 1.0e-3, 1.0e8, 's', 'cooling time constant')
     rho: float = param(0.0, -RHO_MAX, RHO_MAX, '', 'rebound/compression asymmetry')
+    yield_n: float = param(0.0, 0.3, 20.0, '', 'yield sigmoid exponent', off=0.0,
+                           required=False)
 
     law = 'extended'
 
@@ -124,13 +129,19 @@ def _element(p, s, u, i, dt):
         else:
             y = z
             dy = a * (1.0 - abs(z))
+    elif p[P_YN] > 0.0:
+        yn = p[P_YN]
+        w = u / vy
+        q = 1.0 + abs(w) ** yn
+        y = w * q ** (-1.0 / yn)
+        dy = q ** (-1.0 / yn - 1.0) / vy
     else:
         y = fast_tanh(u / vy)
         dy = (1.0 - y * y) / vy
     mth = 1.0 - p[P_KAPPA] * s[S_E]
     if mth < 0.05:
         mth = 0.05
-    t = y if xh <= 0.0 else fast_tanh(u / vy)
+    t = y if xh <= 0.0 and p[P_YN] <= 0.0 else fast_tanh(u / vy)
     m = mth * (1.0 + p[P_RHO] * t)
     dm = mth * p[P_RHO] * (1.0 - t * t) / vy
     core = c * u + fy * y

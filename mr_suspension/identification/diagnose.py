@@ -31,7 +31,7 @@ SCREEN_FIXED = ()  # parameters screening fits keep at the parent's value (none:
 PARTLY_FACTOR = 2.0  # extended held-out NRMSE above this many noise floors: partly explained
 UPGRADE = 'current_lag->current_lag_asymmetric'
 NESTED = {('current_lag', 'current_lag_asymmetric')}
-EXCLUSIVE = ({'current_lag', 'current_lag_asymmetric'},)
+EXCLUSIVE = ({'current_lag', 'current_lag_asymmetric'}, {'hysteresis', 'yield_shape'})
 SEPARATING_EXPERIMENT = {
     frozenset(('current_delay', 'current_lag')):
         'current steps at constant speed: a dead time shifts the force edge, a lag rounds it',
@@ -42,6 +42,9 @@ SEPARATING_EXPERIMENT = {
         'grows with frequency, a rate-independent hysteresis loop does not',
     frozenset(('gas_spring', 'series_stiffness')):
         'slow ramps and held displacement offsets: a gas spring holds force at zero velocity',
+    frozenset(('hysteresis', 'yield_shape')):
+        'harmonic tests at several amplitudes at one frequency: a pre-yield loop shows as a '
+        'force lag at reversals, a yield shape is the same on loading and unloading',
     frozenset(('gas_spring', 'hysteresis')):
         'harmonic tests about several displacement offsets',
     frozenset(('current_saturation', 'direction_asymmetry')):

@@ -27,7 +27,8 @@ from scipy import optimize
 from mr_suspension.core.extended import ExtendedDamperParams, simulate_extended
 
 EFFECTS = ('current_delay', 'current_lag', 'current_lag_asymmetric', 'current_saturation',
-           'hysteresis', 'series_stiffness', 'gas_spring', 'thermal_fade', 'direction_asymmetry')
+           'hysteresis', 'series_stiffness', 'gas_spring', 'thermal_fade', 'direction_asymmetry',
+           'yield_shape')
 SENSOR_EFFECTS = ('channel_delay',)
 ALL_EFFECTS = SENSOR_EFFECTS + EFFECTS
 EFFECT_PARAMS = {
@@ -41,6 +42,7 @@ EFFECT_PARAMS = {
     'gas_spring': (),
     'thermal_fade': ('kappa', 'tau_thermal'),
     'direction_asymmetry': ('rho',),
+    'yield_shape': ('yield_n',),
 }
 FORCE_DEPENDENT = ('series_stiffness', 'thermal_fade')
 LINEAR_PARAMS = ('rho', 'dead_time', 'delay')  # searched on a linear scale (may be 0 or < 0)
@@ -187,6 +189,8 @@ class Dataset:
             return self.t_max * np.array([0.3, 1.0, 3.0, 30.0])
         if name == 'rho':
             return np.linspace(-0.45, 0.45, 19)
+        if name == 'yield_n':
+            return np.array([0.7, 0.9, 1.2, 1.6, 2.2, 3.0, 4.5, 7.0])
         if name == 'delay':
             return np.array([-20, -12, -8, -5, -3, -2, -1.2, -0.6, 0, 0.6, 1.2, 2, 3, 5, 8, 12,
                              20]) * ms
@@ -197,7 +201,7 @@ def neutral_eta():
     """Nonlinear parameters with every effect off (v_y set by the search)."""
     return {'v_y': 0.01, 'dead_time': 0.0, 'tau_lag': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0,
             'i_sat': 0.0, 'x_h': 0.0, 'k_series': 0.0, 'kappa': 0.0, 'tau_thermal': 600.0,
-            'rho': 0.0, 'delay': 0.0}
+            'rho': 0.0, 'delay': 0.0, 'yield_n': 0.0}
 
 
 def current_dynamics(effects, eta):
@@ -227,6 +231,8 @@ def damper_params(effects, eta, theta):
         d['tau_thermal'] = eta['tau_thermal']
     if 'direction_asymmetry' in effects:
         d['rho'] = eta['rho']
+    if 'yield_shape' in effects:
+        d['yield_n'] = eta['yield_n']
     return ExtendedDamperParams(**{k: float(v) for k, v in d.items()})
 
 

@@ -28,6 +28,7 @@ EFFECT_TEXT = {
     'gas_spring': 'accumulator force kg1 x + kg2 x^2 (seed 000 k2)',
     'thermal_fade': 'force falling as (1 - kappa E) with stored heat E from dissipated energy',
     'direction_asymmetry': 'different force in rebound and compression, (1 + rho tanh(v/v_y))',
+    'yield_shape': 'yield sigmoid w / (1 + |w|^n)^(1/n) instead of tanh(w), w = v / v_y',
 }
 
 

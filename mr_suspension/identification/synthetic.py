@@ -122,6 +122,9 @@ def random_truth(rng, effects=(), i_max=1.0):
             d['tau_thermal'] = rng.uniform(100.0, 1000.0)
         elif e == 'direction_asymmetry':
             d['rho'] = rng.uniform(0.1, 0.3) * rng.choice([-1, 1])
+        elif e == 'yield_shape':
+            # Slow (arctan-like) tails: a sharper corner than tanh hides below the noise.
+            d['yield_n'] = rng.uniform(0.8, 1.4)
     return d, dyn
 
 
