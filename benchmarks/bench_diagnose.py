@@ -73,13 +73,13 @@ def run_case(job):
         faults = ()
         shape = 'bingham_tanh'
     else:
-        case = truth_cases.make_case(seed, effs, sensor_faults=None, duration=duration,
-                                     measured_current=None)
         try:
+            case = truth_cases.make_case(seed, effs, sensor_faults=None, duration=duration,
+                                         measured_current=None)
             rec = _record(case.columns, f'truth-{seed}')
             u_case = case.unseen()
             unseen = _record(u_case.columns, f'truth-{seed}-unseen')
-        except dataio.DataError as exc:
+        except ValueError as exc:  # DataError included: refused by the input checks
             return {'family': family, 'k': k, 'effects': effs, 'error': str(exc)}
         floor = case.floor_nrmse
         u_floor = u_case.floor_nrmse
