@@ -11,9 +11,9 @@ the time from the fault to the first driver step at the safe current (target <= 
 the coil current at 90 % of it (target <= 100 ms; the Wonder Box adds 3 ms dead time and a
 7 ms rise lag) in driver time (the command time plus dt per driver step: the driver model
 advances per motion sample, so a loop slower than real time would stretch it) and in wall
-time, the time to leave the fallback once the fault is gone (where it can go), and the plant's
-achieved rate. A run with a fallback before the fault (the machine stalled the loop) is
-discarded and repeated.
+time, the time to leave the fallback once the fault is gone (where it can go; for the sim-time
+jumps, which end by themselves, from the fault), and the plant's achieved rate. A run with a
+fallback before the fault (the machine stalled the loop) is discarded and repeated.
 
 Usage: ``python benchmarks/bench_faults.py [--repeats 3] [--executor events|multi]``.
 """
@@ -93,7 +93,7 @@ FAULTS = {
     'controller silent': lambda s: _silent(s.ctl),
     'command NaN stream': lambda s: _pack_with(s.ctl.tpl_cmd, math.nan),
     'command inf stream': lambda s: _pack_with(s.ctl.tpl_cmd, math.inf),
-    'command always out of range (5 A)': lambda s: _pack_with(s.ctl.tpl_cmd, 5.0),
+    'command always out of range (-3 A)': lambda s: _pack_with(s.ctl.tpl_cmd, -3.0),
     'plant dead': lambda s: s.kill('plant'),
     'sensors stale (not published)': lambda s: _drop_sensors(s.plant),
     'sensor NaN (imu/body)': lambda s: _pack_with(s.plant.tpl_imu_s, math.nan),
@@ -165,6 +165,7 @@ class NodeSet:
         for node in self.nodes.values():
             self.ex.remove_node(node)
             node.destroy_node()
+        self.ex.shutdown()
         rclpy.try_shutdown(context=self.ctx)
 
 
@@ -177,11 +178,13 @@ def run_fault(name, executor):
     try:
         if not s.wait(lambda: s.plant.started and not s.act.health.fallback
                       and not s.ctl.fallback, 20.0):
-            raise RuntimeError(f'{name}: node set did not start healthy')
+            raise RuntimeError(f'{name}: node set did not start healthy: '
+                               f'{sorted(s.ctl.health.faults)} {sorted(s.act.health.faults)}')
         episodes = s.ctl.health.episodes + s.act.health.episodes
         time.sleep(0.5)
         if s.ctl.health.episodes + s.act.health.episodes != episodes or s.ctl.fallback:
-            raise RuntimeError(f'{name}: a fallback before the fault (loop not real time?)')
+            raise RuntimeError(f'{name}: a fallback before the fault (loop not real time?): '
+                               f'{sorted(s.ctl.health.faults)} {sorted(s.act.health.faults)}')
         k0, w0 = s.plant.plant.k, time.monotonic()
         t0 = time.monotonic()
         undo = FAULTS[name](s)
@@ -199,10 +202,12 @@ def run_fault(name, executor):
         t_90d = t_cmd + s.plant.config.dt * (reach - first) \
             if first is not None and reach is not None else math.inf
         t_back = math.nan
-        if name in SELF_ENDING or name not in ('plant dead', 'controller dead'):
+        if name in SELF_ENDING:  # ended during the fault window: when the law resumed
+            resumed = next((t for t, i, _ in steps if t - t0 > t_cmd and i != SAFE), math.nan)
+            t_back = resumed - t0
+        elif name not in ('plant dead', 'controller dead'):
             t1 = time.monotonic()
-            if name not in SELF_ENDING:
-                undo()
+            undo()
             if s.wait(lambda: not s.act.health.fallback and not s.ctl.fallback, 3.0):
                 t_back = time.monotonic() - t1
         return 1e3 * t_cmd, 1e3 * t_90d, 1e3 * t_90, 1e3 * t_back, rate
