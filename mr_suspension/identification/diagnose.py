@@ -176,7 +176,7 @@ def identify_driver(records, nominal=None):
     if not recs or max(float(np.ptp(r.command)) for r in recs) <= 0:
         return None
     dt = min(r.dt for r in recs)
-    taus = np.array([0, 0.5, 1, 2, 3, 4, 6, 8, 11, 15, 20, 28, 40, 60, 90, 140]) * 1e-3
+    taus = np.array([0, 1, 2.5, 5, 9, 16, 30, 55, 100]) * 1e-3
     deads = np.arange(0.0, 0.08 + 0.5 * dt, dt)
     best = (np.inf, 0.0, 0.0, 0.0)
     for tr in taus:

@@ -262,6 +262,9 @@ def design(ds, effects, eta, theta_prev):
     for r in ds.records:
         i_f = field_current(r.i_in, r.dt, dyn['dead_time'], dyn['tau_rise'], dyn['tau_fall'])
         _, u, y, m, g = simulate_extended(p, r.displacement, r.velocity, i_f, r.dt)
+        if not np.max(np.abs(u)) <= 100.0 * np.max(np.abs(r.velocity)) + 1.0:
+            # The element state ran away (a non-monotone element at this theta): no model.
+            return np.full((ds.force.size, 7 if gas else 5), np.nan)
         mu = m * u
         my = m * y
         c = [np.ones(r.n), mu, mu * i_f, my, my * g]
@@ -351,7 +354,10 @@ class FitResult:
             self.eta_k.append(r.eta)
             self.theta_k.append(r.theta_k[f])
         self.n_test = best.n
-        self.prediction = x_best @ self.theta
+        if x_best.shape[1] == self.theta.size:
+            self.prediction = x_best @ self.theta
+        else:  # every visited point diverged: nothing to predict with
+            self.prediction = np.full(ds.force.size, np.nan)
         self.n_eval = len(visited)
 
     @property
@@ -506,7 +512,8 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                     break
 
     def update_theta():
-        if force_dep and state['best'] is not None:
+        # A diverged best (every point so far infinite) has no theta to iterate from.
+        if force_dep and state['best'] is not None and np.isfinite(state['best'].sse):
             e = dict(state['best'].eta)
             theta[:] = state['best'].theta
             state['best'] = None

@@ -59,6 +59,35 @@ def _best_repeats(x, v, i, rate, t_min, t_max, window):
     return lag, best
 
 
+def _refine(r, kf, lf, q, window):
+    """At the full rate, move each coarse lag by up to ``q`` samples to the best match.
+
+    Returns ``(d^2, sample, lag)`` at the record's own rate (the coarse search runs on thinned
+    signals, whose repeats are off by up to half a thinned sample).
+    """
+    x, v, i = r.displacement, r.velocity, r.i_in
+    sc = [np.std(a) or 1.0 for a in (x, v, i)]
+    w = max(1, int(round(window / r.dt)))
+    step = max(1, w // 20)
+    offs = np.arange(-w + 1, 1, step)
+    best = np.full(kf.size, np.inf)
+    lag = lf.copy()
+    for j in range(-q, q + 1):
+        L = lf + j
+        a = kf[:, None] + offs[None, :]
+        b = a - L[:, None]
+        ok = (b.min(axis=1) >= 0) & (L > 0)
+        a = np.clip(a, 0, r.n - 1)
+        b = np.clip(b, 0, r.n - 1)
+        d = sum(np.mean(((s[a] - s[b]) / c) ** 2, axis=1) for s, c in zip((x, v, i), sc))
+        d = np.where(ok, d, np.inf)
+        better = d < best
+        best[better] = d[better]
+        lag[better] = L[better]
+    keep = np.isfinite(best)
+    return best[keep], kf[keep], lag[keep]
+
+
 def estimate(records, rate=250.0, t_min=0.05, t_max=12.0, window=0.2,
              d_ladder=(0.002, 0.005, 0.01, 0.02, 0.05), min_pairs=300):
     """Estimate the noise floor of records of one damper (see the module docstring).
@@ -75,17 +104,18 @@ def estimate(records, rate=250.0, t_min=0.05, t_max=12.0, window=0.2,
         q = max(1, int(round(1.0 / (r.dt * rate))))
         x = r.displacement[::q]
         i = r.i_in[::q]
-        f = r.force[::q]
-        fs.append(f)
+        fs.append(r.force)
         v = r.velocity[::q]
         lag, d2 = _best_repeats(x, v, i, 1.0 / (r.dt * q), t_min, t_max, window)
-        k = np.nonzero(np.isfinite(d2) & (d2 <= d_ladder[-1] ** 2))[0]
+        k = np.nonzero(np.isfinite(d2) & (d2 <= (4 * d_ladder[-1]) ** 2))[0]
+        d2, kf, lf = _refine(r, k * q, lag[k] * q, q, window)
         mask = getattr(r, 'mask', None)
         if mask is not None:
-            mq = np.asarray(mask, dtype=bool)[::q]
-            k = k[mq[k] & mq[k - lag[k]]]
-        d2s.append(d2[k])
-        dfs.append(f[k] - f[k - lag[k]])
+            m = np.asarray(mask, dtype=bool)
+            ok = m[kf] & m[kf - lf]
+            d2, kf, lf = d2[ok], kf[ok], lf[ok]
+        d2s.append(d2)
+        dfs.append(r.force[kf] - r.force[kf - lf])
     d2 = np.concatenate(d2s)
     df = np.concatenate(dfs)
     std = float(np.std(np.concatenate(fs)))

@@ -1,0 +1,129 @@
+"""Diagnose on records it did not make (issue #11): sensor delay, driver, floor, verdicts.
+
+Truths come from ``mr_suspension.truth`` (own integrator, other model shapes, realistic
+sensors) or from numpy written here, never from the fitting kernels.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from mr_suspension.core.config import load_driver
+from mr_suspension.identification import data as dataio
+from mr_suspension.identification import diagnose, noise, report
+from mr_suspension.truth import cases
+
+
+def _record(columns, name='case'):
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        return dataio.build_record(name, columns)
+
+
+def _sine_record(noise_rms, seed=0, extra=None, duration=12.0, rate=1000.0):
+    """Sine stroke at three amplitudes and currents, a Bingham-like force + white noise."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(duration * rate)) / rate
+    amp = np.where(t < duration / 3, 0.01, np.where(t < 2 * duration / 3, 0.02, 0.006))
+    x = amp * np.sin(2 * np.pi * 1.5 * t)
+    v = np.gradient(x, 1.0 / rate)
+    i = np.where((t % 4.0) < 2.0, 0.3, 0.9)
+    f = (800 + 1500 * i) * v + (60 + 700 * i) * np.tanh(v / 0.012)
+    if extra is not None:
+        f = f + extra(t, x, v, i)
+    f_noisy = f + noise_rms * rng.standard_normal(t.size)
+    return {'time': t, 'displacement': x, 'velocity': v, 'force': f_noisy,
+            'current_command': i}, f
+
+
+@pytest.mark.parametrize('sigma, rel', [(2.0, 0.25), (10.0, 0.15), (40.0, 0.15)])
+def test_noise_floor_from_repeated_inputs(sigma, rel):
+    """Floor within ``rel`` of the added noise.
+
+    1.5 Hz is no whole number of samples: repeats are off by up to 1/3 ms, which adds about
+    1 N (0.1 % of the force std) to the smallest noise.
+    """
+    cols, clean = _sine_record(sigma, seed=int(sigma))
+    rec = _record(cols)
+    est = noise.estimate([rec])
+    assert est is not None
+    assert est.rms == pytest.approx(sigma, rel=rel)
+    assert est.nrmse == pytest.approx(sigma / np.std(rec.force), rel=rel)
+
+
+def test_noise_floor_not_estimable_without_repeats():
+    rng = np.random.default_rng(3)
+    t = np.arange(8000) / 1000.0
+    x = np.cumsum(rng.standard_normal(t.size)) * 1e-4
+    x -= np.linspace(x[0], x[-1], t.size)
+    rec = _record({'time': t, 'displacement': x, 'force': 2e4 * np.gradient(x, 1e-3)
+                   + rng.standard_normal(t.size), 'current_command': rng.uniform(0, 1, t.size)})
+    assert noise.estimate([rec]) is None
+
+
+def test_unmodelled_effect_is_partly_explained():
+    """A force term no catalogue effect has (cubic stroke stiffening x^3 v): not 'named'."""
+    cols, _ = _sine_record(3.0, seed=4,
+                           extra=lambda t, x, v, i: 4e8 * x ** 2 * v * (1 + np.sin(t)))
+    rec = _record(cols)
+    res = diagnose.run([rec])
+    assert res.floor is not None
+    assert res.verdict == 'partly_explained', (res.causes, res.heldout)
+    assert res.heldout['extended_over_floor'] > diagnose.PARTLY_FACTOR
+    rep, _ = report.build(res, [rec])
+    assert 'unexplained' in rep and rep['residual_map']['current']['nrmse']
+
+
+def test_channel_delay_alone_is_a_sensor_finding():
+    """Effect-free damper and ideal driver (truth integrator), force channel lagging 1.5 ms."""
+    case = cases.make_case(7, (), sensor_faults=(), duration=10.0, shape='bingham_tanh',
+                           sensor_clean=True, measured_current=False, driver_tau=0.0)
+    cols = dict(case.columns)
+    t = cols['time']
+    cols['force'] = np.interp(t - 0.0015, t, cols['force'])
+    res = diagnose.run([_record(cols)])
+    assert 'channel_delay' in res.causes and res.locations['channel_delay'] == 'sensor'
+    assert res.physical_causes == ()
+    assert res.delay == pytest.approx(0.0015, abs=0.0003)
+    assert res.verdict in ('none', 'partly_explained')
+
+
+def test_driver_dead_time_is_a_named_driver_cause():
+    """Measured coil current 9 ms behind the command (nominal Wonder Box: 3 ms)."""
+    cols, _ = _sine_record(5.0, seed=9)
+    dt = 1e-3
+    cmd = cols['current_command']
+    # Independent driver: exact first-order lag (7 ms) by the analytic step response, 9 ms delay.
+    a = np.exp(-dt / 0.007)
+    lag = np.empty_like(cmd)
+    y = cmd[0]
+    for k, u in enumerate(cmd):
+        y = u + (y - u) * a
+        lag[k] = y
+    coil = np.concatenate([np.full(9, lag[0]), lag[:-9]])
+    cols['current'] = coil + 0.002 * np.random.default_rng(1).standard_normal(coil.size)
+    rec = _record(cols)
+    res = diagnose.Diagnosis(nominal_driver=load_driver('wonder_box')).fit([rec])
+    assert 'driver_delay' in res.causes and res.locations['driver_delay'] == 'driver'
+    assert abs(res.driver['dead_time'] - 0.009) <= dt + 1e-9
+    assert res.driver['tau_rise'] == pytest.approx(0.007, rel=0.1)
+    rep, model = report.build(res, [rec])
+    assert model['driver']['dead_time'] == pytest.approx(res.driver['dead_time'])
+    assert 'Driver (command -> measured coil current)' in report.markdown(rep, [])
+
+
+def test_estimator_predicts_and_scores_an_unseen_record():
+    """Truth with series stiffness (Bouc-Wen-free algebraic shape): fit one, score another."""
+    case = cases.make_case(11, ('series_stiffness',), sensor_faults=(), duration=10.0,
+                           shape='algebraic', strength=0.8, measured_current=False)
+    est = diagnose.Diagnosis()
+    res = est.fit([_record(case.columns)])
+    assert 'series_stiffness' in res.physical_causes
+    other = case.unseen()
+    rec = _record(other.columns, 'unseen')
+    f = est.predict(rec)
+    assert f.shape == rec.force.shape and np.all(np.isfinite(f))
+    assert est.score(rec) < 0.5 * est.score(rec, model='baseline')
+    with pytest.raises(RuntimeError):
+        diagnose.Diagnosis().predict(rec)
