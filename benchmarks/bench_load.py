@@ -1,8 +1,9 @@
 """Load + input checks of a 2-million-row rig CSV: wall time and peak memory (printed).
 
-Usage: ``python benchmarks/bench_load.py [ROWS]``. Writes a temporary 1 kHz CSV (time,
-displacement, velocity, force, current_command), then times ``data.load_records`` on it in a
-fresh process so that the peak RSS (``resource.getrusage``) is the loader's own.
+Usage: ``python benchmarks/bench_load.py [ROWS] [--diagnose]``. Writes a temporary 1 kHz CSV
+(time, displacement, velocity, force, current_command), then times ``data.load_records`` on it
+(and with ``--diagnose`` the whole diagnosis after it) in a fresh process so that the peak RSS
+(``resource.getrusage``) is its own.
 """
 
 import os
@@ -27,6 +28,16 @@ rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 print(f'{rec.n} rows: import {t1 - t0:.2f} s wall ({c1 - c0:.2f} s CPU, {rss0:.0f} MB RSS); '
       f'load + checks {t2 - t1:.2f} s wall ({c2 - c1:.2f} s CPU); peak RSS {rss:.0f} MB; '
       f'findings {[f["finding"] for f in rec.findings]}; {len(caught)} warning(s)')
+if len(sys.argv) > 2:
+    from mr_suspension.identification import diagnose
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        res = diagnose.run([rec])
+    t3, c3 = time.perf_counter(), time.process_time()
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f'diagnose: {t3 - t2:.2f} s wall ({c3 - c2:.2f} s CPU); load + diagnose '
+          f'{t3 - t1:.2f} s wall; peak RSS {rss:.0f} MB; verdict {res.verdict}; '
+          f'{res.notes.get("long_records")}')
 """
 
 
@@ -45,14 +56,16 @@ def write_csv(path, rows, rate=1000.0, seed=0):
 
 def main():
     """Write the CSV, run the timed child process, print its figures."""
-    rows = int(float(sys.argv[1])) if len(sys.argv) > 1 else 2_000_000
+    args = [a for a in sys.argv[1:] if not a.startswith('--')]
+    rows = int(float(args[0])) if args else 2_000_000
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, 'big.csv')
         t0 = time.perf_counter()
         write_csv(path, rows)
         size = os.path.getsize(path) / 2 ** 20
         print(f'wrote {rows} rows ({size:.0f} MB) in {time.perf_counter() - t0:.1f} s')
-        out = subprocess.run([sys.executable, '-c', CHILD, path], capture_output=True,
+        extra = ['diagnose'] if '--diagnose' in sys.argv else []
+        out = subprocess.run([sys.executable, '-c', CHILD, path] + extra, capture_output=True,
                              text=True, check=False)
         print(out.stdout.strip() or out.stderr.strip())
 

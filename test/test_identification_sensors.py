@@ -149,9 +149,19 @@ def test_velocity_in_wrong_units_or_sign_is_an_error():
     t = np.arange(5000) * 1e-3
     x, v = _motion(t)
     with pytest.raises(dataio.DataError, match='check --units'):
-        sensors.velocity_check(x, 1.1 * v, 1e-3)
+        sensors.velocity_check(x, 10.0 * v, 1e-3)
     with pytest.raises(dataio.DataError, match='opposite sign'):
         sensors.velocity_check(x, -v, 1e-3)
+
+
+def test_velocity_gain_off_by_ten_percent_is_corrected():
+    """Not a unit (10x, 1000x) or sign error: a miscalibrated channel, replaced."""
+    t = np.arange(5000) * 1e-3
+    x, v = _motion(t)
+    used, fnd = sensors.velocity_check(x, 1.1 * v, 1e-3)
+    assert fnd['finding'] == 'velocity_inconsistent' and fnd['action'] == 'corrected'
+    assert fnd['gain'] == pytest.approx(1.1, abs=0.01)
+    assert np.sqrt(np.mean(used ** 2)) == pytest.approx(np.sqrt(np.mean(v ** 2)), rel=0.03)
 
 
 def test_spikes_are_excluded_if_few_and_an_error_if_many():

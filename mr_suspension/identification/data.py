@@ -753,6 +753,49 @@ def decimate(rec, q):
                    mask=cut(rec.mask), stamps=stamps, stamp_index=index)
 
 
+def window(rec, start, stop, name=None):
+    """Return samples ``start:stop`` of a record as a record of its own (time from 0)."""
+    sl = slice(int(start), int(stop))
+
+    def cut(a):
+        return None if a is None else a[sl]
+
+    stamps, index = rec.stamps, rec.stamp_index
+    if index is not None:
+        keep = (index >= sl.start) & (index < sl.stop)
+        stamps, index = stamps[keep] - rec.time[sl.start], index[keep] - sl.start
+    else:
+        stamps = rec.time[sl] - rec.time[sl.start]
+    return replace(rec, name=name or f'{rec.name}[{sl.start}:{sl.stop}]',
+                   time=rec.time[sl] - rec.time[sl.start], displacement=rec.displacement[sl],
+                   velocity=rec.velocity[sl], force=rec.force[sl], i_in=rec.i_in[sl],
+                   command=cut(rec.command), temperature=cut(rec.temperature),
+                   mask=cut(rec.mask), stamps=stamps, stamp_index=index)
+
+
+def limit_duration(records, max_seconds, piece=20.0):
+    """Limit records to ``max_seconds`` in total by evenly spread ``piece``-second windows.
+
+    Long records (a 2-million-row file) are judged on windows spread over their whole length,
+    at the full rate, instead of on every sample: the selection and the fits scale with the
+    samples used. Returns ``(records, note or None)``.
+    """
+    total = sum(r.duration for r in records)
+    if total <= max_seconds:
+        return list(records), None
+    out = []
+    share = max_seconds / total
+    for r in records:
+        want = r.duration * share
+        k = max(1, int(round(want / piece)))
+        n_piece = int(min(piece, r.duration / k) / r.dt)
+        starts = np.linspace(0, r.n - n_piece, k).astype(int)
+        out += [window(r, a, a + n_piece) for a in starts]
+    used = sum(r.duration for r in out)
+    return out, (f'{total:.0f} s of records: judged on {len(out)} windows of {piece:g} s '
+                 f'spread over them ({used:.0f} s, {100 * used / total:.0f} %)')
+
+
 def at_stamps(rec, y):
     """``(stamps, y at the stamps)``: a signal on the record's grid at the input's own rows."""
     y = np.asarray(y, dtype=float)

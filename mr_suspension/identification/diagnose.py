@@ -28,6 +28,7 @@ SEARCH_RATE = 250.0
 JOINT_FEV = 20
 CLEAR_LOSS = 0.6
 SCREEN_FIXED = ()  # parameters screening fits keep at the parent's value (none: see docs)
+MAX_SECONDS = 300.0  # longer data are judged on windows spread over it (data.limit_duration)
 PARTLY_FACTOR = 2.0  # extended held-out NRMSE above this many noise floors: partly explained
 UPGRADE = 'current_lag->current_lag_asymmetric'
 NESTED = {('current_lag', 'current_lag_asymmetric')}
@@ -633,13 +634,15 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     folds and scored on the outer blocks (``outer``), which neither the selection nor any
     parameter search saw.
     """
-    full = list(records)
+    full, long_note = dataio.limit_duration(list(records), MAX_SECONDS)
     recs = full
     if search_rate:
         recs = [dataio.decimate(r, max(1, int(1.0 / (r.dt * search_rate) + 1e-9)))
                 for r in full]
     ds = engine.Dataset(recs, n_folds=n_folds, outer=outer)
     untestable, notes = testability(recs)
+    if long_note:
+        notes['long_records'] = long_note
     physics = [e for e in effects if e in engine.EFFECTS and e not in untestable]
     sensors = [e for e in effects if e in engine.SENSOR_EFFECTS]
     tick = progress or (lambda *a, **k: None)

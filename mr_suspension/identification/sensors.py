@@ -32,7 +32,8 @@ FALSE_RUNS = 1e-3        # expected number of chance runs tolerated per channel
 MIN_RUN = 5              # shortest repeated run that can be a fault
 SPIKE_SIGMAS = 10.0      # a spike leaves the running median by this many robust sigmas ...
 SPIKE_SPREAD = 0.5       # ... and leaves the 0.5-99.5 % range by this fraction of it
-GAIN_TOL = 0.05          # measured / derived velocity gain tolerance
+GAIN_TOL = 0.05          # measured / derived velocity gain off by more: corrected
+UNIT_TOL = 0.25          # gain off by more (a unit or sign error): refused
 SHIFT_TOL = 0.3          # velocity time shift [samples] that is reported and corrected
 NOISE_TOL = 0.05         # velocity HF noise / velocity RMS that is reported and corrected
 
@@ -377,9 +378,10 @@ def velocity_check(x, v, dt, cutoff=25.0, mask=None):
     """Compare a measured velocity with the zero-phase derivative of displacement.
 
     Both are compared after the same zero-phase low-pass. Raises ``DataError`` when the gain
-    is off by more than ``GAIN_TOL`` (units or sign) or the two do not correlate. A time
-    shift of ``SHIFT_TOL`` sample or more, or high-frequency noise above ``NOISE_TOL`` of the
-    velocity RMS, gives ``velocity_inconsistent`` and the derived velocity replaces it.
+    is off by more than ``UNIT_TOL`` (units or sign) or the two do not correlate. A gain off
+    by more than ``GAIN_TOL``, a time shift of ``SHIFT_TOL`` sample or more, or high-frequency
+    noise above ``NOISE_TOL`` of the velocity RMS gives ``velocity_inconsistent`` and the
+    derived velocity replaces it.
     Returns ``(velocity to use, finding or None)``.
     """
     from mr_suspension.identification.data import DataError, derive_velocity
@@ -408,7 +410,7 @@ def velocity_check(x, v, dt, cutoff=25.0, mask=None):
     k = int(round(shift))
     gain = float(np.dot(np.roll(vf, -k)[w], vd[w]) / nb)
     rms_d = math.sqrt(nb / max(int(w.sum()), 1))
-    if abs(gain - 1.0) > GAIN_TOL:
+    if abs(gain - 1.0) > UNIT_TOL:
         what = 'has the opposite sign of' if gain < 0 else 'disagrees with'
         raise DataError(f'velocity {what} d(displacement)/dt (gain {gain:.4g}, RMS '
                         f'{abs(gain) * rms_d:.3g} vs {rms_d:.3g} m/s); check --units '
@@ -421,11 +423,14 @@ def velocity_check(x, v, dt, cutoff=25.0, mask=None):
     ratio = noise / rms_d if rms_d > 0 else 0.0
     skewed = abs(shift) >= SHIFT_TOL
     noisy = ratio > NOISE_TOL and noise > 3 * noise_d
+    scaled = abs(gain - 1.0) > GAIN_TOL
     nums = {'gain': gain, 'shift_samples': shift, 'shift_s': shift * dt, 'noise_ratio': ratio,
             'noise_ratio_derived': noise_d / rms_d if rms_d > 0 else 0.0}
-    if not (skewed or noisy):
+    if not (skewed or noisy or scaled):
         return v, None
     parts = []
+    if scaled:
+        parts.append(f'is {gain:.3f} times d(displacement)/dt')
     if skewed:
         parts.append(f'{"lags" if shift > 0 else "leads"} d(displacement)/dt by '
                      f'{abs(shift):.2f} sample(s) ({1e3 * abs(shift) * dt:.3g} ms)')
