@@ -113,11 +113,12 @@ def shape_extras(shape, driver=0.0):
 
     The fit's baseline is a tanh yield; a truth with another yield sigmoid really has a
     different ``yield_shape``, a Bouc-Wen baseline really has a pre-yield ``hysteresis``
-    loop, and the truth's small driver lag, seen through the command, is a real
-    ``current_lag`` when it is >= 3x the noise. Naming them is right; they are left out of the
-    scores (the strict figures count them).
+    loop, and the truth's small driver lag (0.05-0.5 ms), seen through the command, is a real
+    current lag (or, below a sample, a dead time) when its force contribution is above the
+    noise. Naming them is right; they are left out of the scores (the strict figures count
+    them).
     """
-    out = {'current_lag'} if driver >= 3.0 else set()
+    out = {'current_lag', 'current_delay'} if driver >= 1.0 else set()
     if shape != 'bingham_tanh':
         out.add('yield_shape')
     if shape == 'bouc_wen':
