@@ -16,13 +16,7 @@ HERE = Path(__file__).resolve().parent / 'malformed'
 # Cases still failing for reasons outside this corpus' owners' files (identification/data.py
 # is being reworked by another engineer); each must stay free of tracebacks and hangs, and is
 # listed by the summary. Remove an entry once it passes.
-KNOWN_OPEN = {
-    'mat_string_force': 'data.py: "could not convert string to float" without the variable',
-    'csv_no_current_variation': 'diagnose: constant current, exit 0 without a warning that the '
-                                'current dependence (c1, fy1) is not identifiable',
-    'csv_zero_current': 'diagnose: zero current throughout, exit 0 without a warning',
-    'csv_negative_current': 'data.py: negative current command accepted without a warning',
-}
+KNOWN_OPEN = {}
 
 
 def _load(name):

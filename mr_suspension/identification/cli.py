@@ -133,6 +133,9 @@ def cmd_diagnose(args):
                              progress=tick).fit(records)
     if bar is not None:
         bar.close()
+    if 'current' in res.notes:
+        print(f'warning: {res.notes["current"]} (c1 and fy1 are not identifiable; record '
+              'several current levels, see mr-suspension doe)', file=sys.stderr)
     rep, _ = report.write(res, records, args.out, validate, time.time() - t0,
                           make_plots=not args.no_plots, input_warnings=notes)
     if not args.quiet:

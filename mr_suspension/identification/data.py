@@ -358,6 +358,10 @@ def build_record(name, cols, opts=None, meta=None):
     if np.max(np.abs(i_in)) > 10.0:
         warnings.warn(f'{name}: current reaches {np.max(np.abs(i_in)):.3g} A; if it is in mA '
                       'pass --units current_command=mA')
+    if np.min(i_in) < -0.05 * max(float(np.max(np.abs(i_in))), 1e-3):
+        warnings.warn(f'{name}: current goes negative (down to {np.min(i_in):.3g} A); an MR '
+                      'coil is driven with a current >= 0 and the force law uses the signed '
+                      'value: check the sign convention of the current column')
     return Record(name=name, time=base.time, displacement=x, velocity=v, force=f, i_in=i_in,
                   input_kind=kind, dt=dt, command=command, temperature=cols.get('temperature'),
                   velocity_source=vsrc, meta=dict(meta or {}), mask=mask,
@@ -565,7 +569,11 @@ def load_mat(path, opts=None):
     for canon in CANONICAL:
         src = opts.columns.get(canon, canon)
         if src in mat:
-            cols[canon] = np.asarray(mat[src], dtype=float).ravel()
+            try:
+                cols[canon] = np.asarray(mat[src], dtype=float).ravel()
+            except (TypeError, ValueError):
+                raise DataError(f'{path}: variable {src!r} ({canon}) is not numeric '
+                                f'({np.asarray(mat[src]).dtype}); store it as a numeric vector')
     return [build_record(path.name, _apply_units(cols, opts.units), opts)]
 
 
