@@ -18,8 +18,9 @@ neutral value: ``i_s = 0``, ``x_h = 0``, ``k1 = 0``, ``kg1 = kg2 = 0``, ``kappa 
 ``z+ = sgn u + (z - sgn u) exp(-|u| dt / x_h)``.
 
 The state vector ``s`` (length ``EXT_NSTATE``, all zeros = at rest) holds
-``[z, F_d, E, u, y, M, g]``; the last four are the step's intermediates, which the
-identification reads to build its regressors, so fitting and simulation share this one function.
+``[z, F_d, E, u, y, M, g, dF_d/du]``; the last five are the step's intermediates, which the
+identification reads to build its regressors (and the next step's Newton predictor), so fitting
+and simulation share this one function.
 Current dynamics (dead time, lags) are not here: they belong to the driver (core.driver).
 """
 
@@ -32,8 +33,8 @@ import numpy as np
 from mr_suspension.core.fastmath import fast_tanh
 from mr_suspension.core.validation import as_number, build, check_declared, param
 
-EXT_NSTATE = 7
-S_Z, S_FD, S_E, S_U, S_Y, S_M, S_G = range(7)
+EXT_NSTATE = 8
+S_Z, S_FD, S_E, S_U, S_Y, S_M, S_G, S_DF = range(8)
 (P_F0, P_C0, P_C1, P_FY0, P_FY1, P_VY, P_ISAT, P_XH, P_K1, P_KG1, P_KG2, P_KAPPA, P_TAUTH,
  P_RHO, P_YN) = range(15)
 RHO_MAX = 0.5
@@ -133,8 +134,9 @@ def _element(p, s, u, i, dt):
         yn = p[P_YN]
         w = u / vy
         q = 1.0 + abs(w) ** yn
-        y = w * q ** (-1.0 / yn)
-        dy = q ** (-1.0 / yn - 1.0) / vy
+        r = q ** (-1.0 / yn)
+        y = w * r
+        dy = r / (q * vy)
     else:
         y = fast_tanh(u / vy)
         dy = (1.0 - y * y) / vy
@@ -160,9 +162,9 @@ def extended_force(p, s, x, v, i, dt):
         kdt = k1 * dt
         fprev = s[S_FD]
         # Monotone root of h(u) = F_d(u) - F_prev - k1 dt (v - u) (h' = F_d' + k1 dt > 0):
-        # a few Newton steps from the previous u; if they do not settle, bracket the root
-        # and finish with Newton safeguarded by bisection.
-        u = s[S_U]
+        # a few Newton steps from the previous step's linearisation (its u and dF_d/du); if
+        # they do not settle, bracket the root and finish with Newton safeguarded by bisection.
+        u = s[S_U] + kdt * (v - s[S_U]) / (s[S_DF] + kdt)
         tol = 1e-10 * (abs(v) + p[P_VY])
         done = False
         for _ in range(4):
@@ -221,13 +223,14 @@ def extended_force(p, s, x, v, i, dt):
     if p[P_KAPPA] > 0.0:
         s[S_E] = s[S_E] * math.exp(-dt / p[P_TAUTH]) + fd * u * dt
     s[S_U] = u
+    s[S_DF] = dfd if dfd > 0.0 else 0.0
     s[S_Y] = y
     s[S_M] = m
     s[S_G] = g
     return force, tangent
 
 
-@njit(cache=True, fastmath=True, error_model='numpy')
+@njit(cache=True, fastmath=True, error_model='numpy', nogil=True)
 def simulate_extended(p, x, v, i, dt):
     """Run ``extended_force`` along a record from rest; return ``(F, u, y, M, g)`` arrays."""
     n = x.shape[0]

@@ -12,7 +12,9 @@ materially and consistently better (same rule between them) and their fitted con
 resolve to the simpler one. Effects that the excitation cannot reveal are ``untestable``.
 """
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+import os
 
 from numba import njit
 import numpy as np
@@ -31,6 +33,7 @@ SCREEN_FIXED = ()  # parameters screening fits keep at the parent's value (none:
 MAX_SECONDS = 300.0  # longer data are judged on windows spread over it (data.limit_duration)
 PARTLY_FACTOR = 2.0  # extended held-out NRMSE above this many noise floors: partly explained
 UPGRADE = 'current_lag->current_lag_asymmetric'
+JOBS = max(1, min(4, os.cpu_count() or 1))  # threads for independent fits (kernels drop the GIL)
 NESTED = {('current_lag', 'current_lag_asymmetric')}
 EXCLUSIVE = ({'current_lag', 'current_lag_asymmetric'}, {'hysteresis', 'yield_shape'})
 SEPARATING_EXPERIMENT = {
@@ -290,19 +293,47 @@ def _choose(cands, parent_test, parent_pred):
     return best, ambiguous, stats
 
 
+def _parallel(jobs, tick=None):
+    """Run independent fits ``{key: (label, callable)}`` on ``JOBS`` threads; same results.
+
+    The fits share only read-only data and their kernels release the GIL, so the result is
+    identical to the serial loop (each fit is deterministic on its own).
+    """
+    keys = list(jobs)
+    if JOBS == 1 or len(keys) < 2:
+        out = {}
+        for k in keys:
+            out[k] = jobs[k][1]()
+            if tick:
+                tick(jobs[k][0])
+        return out
+    with ThreadPoolExecutor(min(JOBS, len(keys))) as ex:
+        futs = {k: ex.submit(jobs[k][1]) for k in keys}
+        out = {}
+        for k in keys:
+            out[k] = futs[k].result()
+            if tick:
+                tick(jobs[k][0])
+    return out
+
+
 def _children(ds, chosen, candidates, current, tick):
-    pool = {}
-    for e in candidates:
-        if e in chosen or not _compatible(chosen, e):
-            continue
-        pool[e] = engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
-                             start_theta=current.theta, new=(e,), sweeps=1, fixed=SCREEN_FIXED)
-        tick('+'.join(list(chosen) + [e]))
+    def child(e):
+        return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
+                                  start_theta=current.theta, new=(e,), sweeps=1,
+                                  fixed=SCREEN_FIXED)
+
+    pool = _parallel({e: ('+'.join(list(chosen) + [e]), child(e)) for e in candidates
+                      if e not in chosen and _compatible(chosen, e)}, tick)
     # Screening done with one sweep; the two most promising children get a second one.
-    for e in sorted(pool, key=lambda k: pool[k].sse)[:2]:
-        f = pool[e]
-        g = engine.fit(ds, f.effects, start_eta=f.eta, start_theta=f.theta, new=(), sweeps=1)
-        if g.sse < f.sse:
+
+    def again(f):
+        return lambda: engine.fit(ds, f.effects, start_eta=f.eta, start_theta=f.theta,
+                                  new=(), sweeps=1)
+
+    top = sorted(pool, key=lambda k: pool[k].sse)[:2]
+    for e, g in _parallel({e: (e, again(pool[e])) for e in top}).items():
+        if g.sse < pool[e].sse:
             pool[e] = g
     if 'current_lag' in chosen and 'current_lag_asymmetric' in candidates:
         # Upgrade a symmetric lag to the asymmetric one (nested: rise = fall = tau).
@@ -419,6 +450,14 @@ def backward(ds, chosen, fits, singles=None, drop_loss=None, skip=(), tick=None)
     changed = True
     while changed and len(chosen) > 1:
         changed = False
+        # The drop-one fits of this pass are independent: run them together.
+        todo = [e for e in chosen if e not in skip
+                and tuple(c for c in chosen if c != e) not in fits]
+        if len(todo) > 1:
+            def sub_fit(e, fin=final, ch=tuple(chosen)):
+                return lambda: _fits_without(ds, {}, singles or {}, fin, e, ch)
+            for e, f in _parallel({e: (None, sub_fit(e)) for e in todo}).items():
+                fits[tuple(c for c in chosen if c != e)] = f
         for e in list(chosen):
             if e in skip:
                 continue
@@ -457,11 +496,12 @@ def _forward(ds, base, sensors, physics, tick):
                                  new=())
             fits[tuple(chosen)] = current
     parent0 = current
-    singles = {}
-    for e in physics:
-        singles[e] = engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
-                                start_theta=current.theta, new=(e,), fixed=SCREEN_FIXED)
-        tick(e)
+
+    def single(e):
+        return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
+                                  start_theta=current.theta, new=(e,), fixed=SCREEN_FIXED)
+
+    singles = _parallel({e: (e, single(e)) for e in physics}, tick)
     candidates = list(physics) + [e for e in sensors if e not in chosen]
     stage_amb = []
     pool = dict(singles)
@@ -543,13 +583,17 @@ def _swaps(ds, chosen, fits, singles, stage_amb, tick):
 
 def _full_rate(ds, base, final, chosen, drop_loss, ds_search, final_search, tick):
     """Refit baseline and final model at the full rate; re-check causes near the threshold."""
-    base = engine.fit(ds, (), start_eta=base.eta, start_theta=base.theta, new=())
-    tick('baseline (full rate)')
+    jobs = {'base': ('baseline (full rate)', lambda: engine.fit(
+        ds, (), start_eta=base.eta, start_theta=base.theta, new=()))}
+    if chosen:
+        jobs['final'] = ('extended (full rate)', lambda: engine.fit(
+            ds, tuple(final.effects), start_eta=final.eta, start_theta=final.theta, new=(),
+            sweeps=1, joint=JOINT_FEV, local=(0.5, 1.0, 2.0)))
+    out = _parallel(jobs, tick)
+    base = out['base']
     if not chosen:
         return base, base, chosen
-    final = engine.fit(ds, tuple(final.effects), start_eta=final.eta, start_theta=final.theta,
-                       new=(), sweeps=1, joint=JOINT_FEV, local=(0.5, 1.0, 2.0))
-    tick('extended (full rate)')
+    final = out['final']
     # A small cause found on decimated records may only compensate the coarser discretisation.
     fits = {tuple(chosen): final, (): base}
     clear = [e for e in chosen if drop_loss.get(e, 0.0) >= CLEAR_LOSS]

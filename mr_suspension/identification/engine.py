@@ -51,7 +51,7 @@ THETA_NAMES = ('f0', 'c0', 'c1', 'fy0', 'fy1')
 GAS_NAMES = ('k_gas1', 'k_gas2')
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def field_current(u, dt, dead_time, tau_rise, tau_fall):
     """Return the field current: exact-ZOH lag then a dead time (core.driver), from rest.
 
@@ -74,7 +74,7 @@ def field_current(u, dt, dead_time, tau_rise, tau_fall):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def shift_columns(x, s):
     """Return ``x(t - s dt)`` for every column: a signed fractional shift of ``s`` samples.
 
