@@ -21,6 +21,7 @@ Usage: ``python benchmarks/bench_diagnose.py [--cases 300] [--duration 12] [--jo
 import argparse
 from concurrent.futures import ProcessPoolExecutor
 import itertools
+import json
 import time
 import warnings
 
@@ -60,6 +61,7 @@ def _record(columns, name):
 def run_case(job):
     """Diagnose one case; return a dict of outcomes (runs in a worker process)."""
     family, k, effs, seed, duration = job
+    diagnose.JOBS = 1  # the cases run in parallel processes already
     t0 = time.time()
     if family == 'in-model':
         rec, truth = synthetic.make_record(effs, seed=seed, duration=duration)
@@ -96,6 +98,7 @@ def run_case(job):
             warnings.simplefilter('ignore')
             res = d.fit([rec])
             score = d.score(unseen)
+            b_score = d.score(unseen, 'baseline')
     except (dataio.DataError, ValueError) as exc:
         return {'family': family, 'k': k, 'effects': effs, 'error': str(exc)}
     est = res.floor.nrmse if res.floor is not None else float('nan')
@@ -105,6 +108,7 @@ def run_case(job):
                                                            if c not in res.physical_causes),
             'verdict': res.verdict, 'contrib': contrib, 'floor': floor,
             'floor_est': est, 'unseen_ratio': score / u_floor if u_floor > 0 else np.nan,
+            'unseen_baseline_ratio': b_score / u_floor if u_floor > 0 else np.nan, 'seed': seed,
             'heldout': res.heldout['extended_nrmse'], 'seconds': time.time() - t0}
 
 
@@ -203,6 +207,14 @@ def timing():
           f'verdict {res.verdict})')
 
 
+def _jsonable(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, (set, tuple, np.ndarray)):
+        return list(o)
+    return str(o)
+
+
 def main(argv=None):
     """Run the benchmark and print the figures."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -212,6 +224,7 @@ def main(argv=None):
     ap.add_argument('--seed', type=int, default=0)
     ap.add_argument('--jobs', type=int, default=2)
     ap.add_argument('--no-timing', action='store_true')
+    ap.add_argument('--json', default=None, help='write every case outcome to this JSON file')
     args = ap.parse_args(argv)
     jobs = [('out-of-model', k, e, args.seed * 100003 + k, args.duration)
             for k, e in enumerate(case_list(args.cases, args.seed, truth_rig.EFFECTS))]
@@ -229,6 +242,9 @@ def main(argv=None):
                   f' {r.get("verdict", "")}', flush=True)
     print(f'\n{len(jobs)} cases of {args.duration:g} s in {time.time() - t0:.0f} s, '
           f'{args.jobs} worker(s); sensor faults drawn from {truth_sensors.FAULTS}')
+    if args.json:
+        with open(args.json, 'w') as fh:
+            json.dump(results, fh, indent=1, default=_jsonable)
     for family in ('out-of-model', 'in-model'):
         summarise(family, results)
     summarise('out-of-model', results, strict=True)

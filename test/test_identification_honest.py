@@ -127,3 +127,28 @@ def test_estimator_predicts_and_scores_an_unseen_record():
     assert est.score(rec) < 0.5 * est.score(rec, model='baseline')
     with pytest.raises(RuntimeError):
         diagnose.Diagnosis().predict(rec)
+
+
+@pytest.mark.parametrize('dead_samples', [1, 2])
+def test_dead_time_below_the_search_step_is_found_at_the_full_rate(dead_samples):
+    """A dead time of one or two samples (a quarter or half of a 250 Hz search step)."""
+    cols, clean = _sine_record(3.0, seed=13)
+    rng = np.random.default_rng(13)
+    t, v = cols['time'], cols['velocity']
+    # Random current levels held 20-80 ms: many edges, each off by the dead time.
+    cmd = np.empty(t.size)
+    k = 0
+    while k < t.size:
+        n = int(rng.integers(20, 81))
+        cmd[k:k + n] = rng.uniform(0.0, 1.0)
+        k += n
+    cols['current_command'] = cmd
+    i = np.concatenate([np.full(dead_samples, cmd[0]), cmd[:-dead_samples]])
+    f = (800 + 1500 * i) * v + (60 + 700 * i) * np.tanh(v / 0.012)
+    cols['force'] = f + 3.0 * rng.standard_normal(t.size)
+    res = diagnose.run([_record(cols)])
+    assert res.physical_causes == ('current_delay',)
+    dyn = res.final.dynamics()
+    assert dyn['dead_time'] == pytest.approx(dead_samples * 1e-3, abs=1e-9)
+    assert any(s.get('stage') == 'fine timing (full rate)' for s in res.steps)
+    assert res.heldout['extended_nrmse'] < 1.15 * 3.0 / np.std(cols['force'])

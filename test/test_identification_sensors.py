@@ -124,7 +124,10 @@ def test_velocity_skewed_by_half_a_millisecond_is_replaced():
     rec = _build(cols)
     assert _names(rec) == ['velocity_inconsistent']
     assert rec.velocity_source.startswith('derived') and rec.mask.all()
-    np.testing.assert_allclose(rec.velocity, dataio.derive_velocity(cols['displacement'], 1e-3))
+    cut = sensors.motion_cutoff(cols['displacement'], 1e-3)  # the motion band's (two sines)
+    assert 3.1 * sensors.BAND_FACTOR <= cut < 100.0
+    np.testing.assert_allclose(rec.velocity,
+                               dataio.derive_velocity(cols['displacement'], 1e-3, cut, 4))
 
 
 def test_velocity_derived_from_a_noisy_displacement_is_replaced():
@@ -220,3 +223,36 @@ def test_package_generator_records_have_no_finding():
 
     rec, _ = synthetic.make_record((), seed=4, duration=10.0)
     assert rec.findings == () and rec.mask.all()
+
+
+def test_motion_cutoff_keeps_the_motion_and_drops_white_noise():
+    rate = 1000.0
+    t = np.arange(int(20 * rate)) / rate
+    x, v = _motion(t)
+    rng = np.random.default_rng(4)
+    noisy = v + 0.01 * np.std(v) * rng.standard_normal(t.size)
+    cut = sensors.motion_cutoff(noisy, 1 / rate)
+    assert cut is not None and 3.1 * sensors.BAND_FACTOR <= cut < 0.3 * rate
+    smooth = sensors.smooth_velocity(noisy, 1 / rate, cut)
+    inner = slice(1000, -1000)
+    # Amplitude kept to 1 % at the motion's own frequencies, white noise cut > 3x.
+    assert np.std((smooth - v)[inner]) < np.std((noisy - v)[inner]) / 3
+    assert abs(np.dot(smooth[inner], v[inner]) / np.dot(v[inner], v[inner]) - 1) < 0.01
+    # Broadband content up to the Nyquist rate or too few samples: no low-pass at all.
+    assert sensors.motion_cutoff(rng.standard_normal(t.size), 1 / rate) is None
+    assert sensors.motion_cutoff(noisy[:100], 1 / rate) is None
+
+
+def test_measured_velocity_noise_above_the_motion_band_is_removed():
+    rate = 1000.0
+    t = np.arange(int(12 * rate)) / rate
+    cols = _cols(t)
+    _, v = _motion(t)
+    rng = np.random.default_rng(5)
+    cols['velocity'] = v + 0.015 * np.std(v) * rng.standard_normal(t.size)
+    rec = _build(cols)
+    assert 'velocity_inconsistent' not in _names(rec)  # 1.5 % noise: not a fault
+    assert np.std(rec.velocity - v) < np.std(cols['velocity'] - v) / 3
+    assert rec.velocity_source.startswith('measured (zero-phase')
+    fixed = _build(cols, velocity_cutoff=400.0)  # the user's cut-off wins
+    assert np.std(fixed.velocity - v) > 0.8 * np.std(cols['velocity'] - v)

@@ -27,8 +27,9 @@ def _add_load_options(p):
                    help='units of a quantity: s/ms, m/mm/cm, m/s/mm/s/cm/s, N/kN, A/mA, V')
     g.add_argument('--preset', choices=('auto', 'vrths', 'none'), default='auto',
                    help='file-name presets for the vrths rig data (default: auto-detect)')
-    g.add_argument('--velocity-cutoff', type=float, default=25.0, metavar='HZ',
-                   help='zero-phase low-pass cut-off when velocity is derived (default 25 Hz)')
+    g.add_argument('--velocity-cutoff', type=float, default=None, metavar='HZ',
+                   help='zero-phase low-pass cut-off of the velocity (default: from the motion '
+                        'band, 1.6x its edge, noise above it removed)')
     g.add_argument('--derive-velocity', action='store_true',
                    help='ignore a velocity column and differentiate displacement')
     g.add_argument('--ignore-measured-current', action='store_true',
@@ -37,8 +38,9 @@ def _add_load_options(p):
 
 def _load_options(args):
     from mr_suspension.core.validation import check_range
-    check_range('diagnose', '--velocity-cutoff', args.velocity_cutoff, 0.01, 1.0e4, 'Hz',
-                'velocity low-pass cut-off')
+    if args.velocity_cutoff is not None:
+        check_range('diagnose', '--velocity-cutoff', args.velocity_cutoff, 0.01, 1.0e4, 'Hz',
+                    'velocity low-pass cut-off')
     return dataio.LoadOptions(columns=dataio.parse_mapping(args.columns, '--columns'),
                               units=dataio.parse_mapping(args.units, '--units'),
                               preset=args.preset, velocity_cutoff=args.velocity_cutoff,

@@ -6,8 +6,10 @@ extension), ``velocity`` [m/s], ``force`` [N] (+ resists extension), the input c
 else the command through the driver's static map: a ``current_command`` is taken as the coil
 current, a ``voltage_command`` goes through ``core.driver.static_current``), and optionally
 ``temperature``. When no velocity is given it is derived from displacement by a zero-phase
-2nd-order Butterworth low-pass (``filtfilt``, cut-off ``velocity_cutoff``, default 25 Hz) and
-central differences; the filter has no phase lag, so it cannot fake a delay or a hysteresis.
+Butterworth low-pass and central differences; the cut-off is ``velocity_cutoff`` (2nd order)
+or, by default, 1.6x the edge of the data's motion band (4th order, ``sensors.motion_band``),
+which also cleans a measured velocity's white noise above that band. The filter has no phase
+lag, so it cannot fake a delay or a hysteresis.
 
 The vrths rig files (``<amp>mm<freq>Hz<current>A.txt``, headerless time/displacement mm/
 velocity mm/s/force N) and ``validacion.mat`` (``data``: displacement mm, then force at 0.2..1.0
@@ -106,7 +108,7 @@ class LoadOptions:
     columns: dict = field(default_factory=dict)
     units: dict = field(default_factory=dict)
     preset: str = 'auto'
-    velocity_cutoff: float = 25.0
+    velocity_cutoff: float = None  # [Hz]; None: from the motion band (sensors.motion_cutoff)
     derive_velocity: bool = False
     use_measured_current: bool = True
     need_force: bool = True
@@ -133,14 +135,25 @@ def parse_mapping(items, what):
     return out
 
 
-def derive_velocity(x, dt, cutoff=25.0):
-    """Velocity from displacement: zero-phase Butterworth (order 2, ``cutoff`` Hz) + gradient."""
+def derive_velocity(x, dt, cutoff=25.0, order=2):
+    """Velocity from displacement: zero-phase Butterworth (``order``, ``cutoff`` Hz) + gradient."""
+    from mr_suspension.identification import sensors
+
     fs = 1.0 / dt
     xs = x
     if cutoff is not None and cutoff < 0.45 * fs and x.size > 30:
-        b, a = signal.butter(2, cutoff / (0.5 * fs))
-        xs = signal.filtfilt(b, a, x, padlen=min(3 * max(len(a), len(b)), x.size - 1))
+        sos = signal.butter(order, cutoff / (0.5 * fs), output='sos')
+        xs = signal.sosfiltfilt(sos, x, padlen=sensors._padlen(x.size, fs, cutoff, order))
     return np.gradient(xs, dt)
+
+
+def velocity_band(x, dt, opts):
+    """Cut-off [Hz] and filter order for velocities: the user's, else the motion band's."""
+    from mr_suspension.identification import sensors
+
+    if opts.velocity_cutoff:
+        return opts.velocity_cutoff, 2
+    return sensors.motion_cutoff(x, dt), 4
 
 
 def _unit_factor(name, unit):
@@ -198,7 +211,7 @@ def _consistent_holds(cols, t, opts):
         return {}
     dt = float(np.median(np.diff(t)))
     vg = np.gradient(x, dt)
-    scale = float(np.sqrt(np.mean(derive_velocity(x, dt, opts.velocity_cutoff) ** 2)))
+    scale = float(np.sqrt(np.mean(derive_velocity(x, dt, opts.velocity_cutoff or 25.0) ** 2)))
     return {'displacement': np.abs(v) <= 0.05 * scale,
             'velocity': np.abs(vg - v) <= 0.1 * scale}
 
@@ -322,18 +335,28 @@ def build_record(name, cols, opts=None, meta=None):
             warnings.warn(f'{name}: peak force only {np.max(np.abs(f[mask])):.3g} N; if the file '
                           'is in kN pass --units force=kN (parameters would be 1000x too small)')
     vsrc = 'measured'
-    derived = f'derived (zero-phase Butterworth 2nd order {opts.velocity_cutoff:g} Hz)'
+    cut, order = velocity_band(x, dt, opts)
+    band = 'no low-pass' if cut is None else f'zero-phase Butterworth order {order} {cut:.3g} Hz'
+    derived = f'derived ({band})'
     if measured_v:
         try:
-            v, fv = sensors.velocity_check(x, cols['velocity'], dt, opts.velocity_cutoff, mask)
+            v, fv = sensors.velocity_check(x, cols['velocity'], dt, cut, mask, order)
         except DataError as exc:
             raise DataError(f'{name}: {exc}') from None
         if fv is not None:
             findings.append(fv)
             warnings.warn(f'{name}: {fv["finding"]}: {fv["detail"]}')
             vsrc = derived + '; measured velocity replaced'
+        elif not opts.velocity_cutoff:
+            # White sensor noise above the motion band only scatters the yield branch.
+            vcut, removed = sensors.motion_band(v, dt)
+            if vcut is not None and removed > 1e-3 * float(np.sqrt(np.mean(v[mask] ** 2))):
+                # (clean data are left exactly as they are)
+                v = sensors.smooth_velocity(v, dt, vcut)
+                vsrc = f'measured (zero-phase Butterworth order 4 {vcut:.3g} Hz: noise above ' \
+                       f'the motion band removed, {removed:.3g} m/s RMS)'
     else:
-        v = derive_velocity(x, dt, opts.velocity_cutoff)
+        v = derive_velocity(x, dt, cut, order)
         vsrc = derived
     vrms = float(np.sqrt(np.mean(v[mask] ** 2)))
     if vrms < NO_MOTION_V:

@@ -33,6 +33,8 @@ SCREEN_FIXED = ()  # parameters screening fits keep at the parent's value (none:
 MAX_SECONDS = 300.0  # longer data are judged on windows spread over it (data.limit_duration)
 PARTLY_FACTOR = 2.0  # extended held-out NRMSE above this many noise floors: partly explained
 UPGRADE = 'current_lag->current_lag_asymmetric'
+FINE = ('current_delay', 'current_lag')  # current timing below the search rate's step
+T_FINE = 3.0  # fold t the extra full-rate test needs (after the selection: a stricter bar)
 JOBS = max(1, min(4, os.cpu_count() or 1))  # threads for independent fits (kernels drop the GIL)
 NESTED = {('current_lag', 'current_lag_asymmetric')}
 EXCLUSIVE = ({'current_lag', 'current_lag_asymmetric'}, {'hysteresis', 'yield_shape'})
@@ -317,6 +319,17 @@ def _parallel(jobs, tick=None):
     return out
 
 
+def _background(fn):
+    """Start ``fn`` on a thread (serial when ``JOBS`` is 1); return a callable for its result."""
+    if JOBS == 1:
+        out = fn()
+        return lambda: out
+    ex = ThreadPoolExecutor(1)
+    fut = ex.submit(fn)
+    ex.shutdown(wait=False)
+    return fut.result
+
+
 def _children(ds, chosen, candidates, current, tick):
     def child(e):
         return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
@@ -345,11 +358,16 @@ def _children(ds, chosen, candidates, current, tick):
     return pool
 
 
-def _symmetric_lag_fit(ds, fit):
-    """Refit ``fit`` with one lag (the geometric mean of its rise/fall) instead of two."""
+def _symmetric_lag_fit(ds, fit, local=False):
+    """Refit ``fit`` with one lag (the geometric mean of its rise/fall) instead of two.
+
+    ``local``: search only near that start (the full-rate check of a search-rate result).
+    """
     eta = dict(fit.eta)
     eta['tau_lag'] = float(np.sqrt(max(eta['tau_rise'], 1e-4) * max(eta['tau_fall'], 1e-4)))
     down = tuple('current_lag' if c == 'current_lag_asymmetric' else c for c in fit.effects)
+    if local:
+        return engine.fit(ds, down, start_eta=eta, start_theta=fit.theta, new=(), sweeps=1)
     return engine.fit(ds, down, start_eta=eta, start_theta=fit.theta, new=('current_lag',))
 
 
@@ -597,18 +615,86 @@ def _full_rate(ds, base, final, chosen, drop_loss, ds_search, final_search, tick
     # A small cause found on decimated records may only compensate the coarser discretisation.
     fits = {tuple(chosen): final, (): base}
     clear = [e for e in chosen if drop_loss.get(e, 0.0) >= CLEAR_LOSS]
-    chosen, final = backward(ds, chosen, fits, drop_loss=drop_loss, skip=clear, tick=tick)
+    sym = None
     if 'current_lag_asymmetric' in chosen:
         # Keep rise != fall only if it pays (nested: clear at the search rate, or at full rate).
+        # The full-rate check runs alongside the backward check (it is redone if that drops
+        # a cause).
         sub = _symmetric_lag_fit(ds_search, final_search)
         if fold_stats(final_search.test, sub.test)[0] < CLEAR_LOSS:
-            sub = _symmetric_lag_fit(ds, final)
-            tick('symmetric lag (full rate)')
-            if not accepted(final.test, sub.test):
-                chosen = ['current_lag' if c == 'current_lag_asymmetric' else c for c in chosen]
-                drop_loss['current_lag'] = drop_loss.pop('current_lag_asymmetric', 0.0)
-                final = sub
+            start = final
+            sym = _background(lambda: _symmetric_lag_fit(ds, start, local=True))
+    chosen, final = backward(ds, chosen, fits, drop_loss=drop_loss, skip=clear, tick=tick)
+    if 'current_lag_asymmetric' in chosen and sym is not None:
+        sub = sym()
+        if sub.effects != tuple('current_lag' if c == 'current_lag_asymmetric' else c
+                                for c in final.effects):
+            sub = _symmetric_lag_fit(ds, final, local=True)
+        tick('symmetric lag (full rate)')
+        if not accepted(final.test, sub.test):
+            chosen = ['current_lag' if c == 'current_lag_asymmetric' else c for c in chosen]
+            drop_loss['current_lag'] = drop_loss.pop('current_lag_asymmetric', 0.0)
+            final = sub
     return base, final, chosen
+
+
+def _fine_timing(ds, final, chosen, allowed, tick):
+    """Judge timing effects finer than the search rate's step at the full rate.
+
+    A dead time or lag of a sample or two (a DAC's hold, a fast driver) is a fraction of a
+    decimated sample: the selection cannot see it, but it leaves
+    an error at every current edge. Each ``FINE`` effect not chosen yet is fitted on top of
+    the final model at the full rate and accepted by the selection's rule with a fold t of
+    at least ``T_FINE`` (a second look at the data after the selection).
+    Returns ``(final, chosen, step record or None)``.
+    """
+    n_phys = len([c for c in chosen if c not in engine.SENSOR_EFFECTS])
+    cands = [e for e in FINE if e in allowed and e not in chosen and _compatible(chosen, e)
+             and (e in engine.SENSOR_EFFECTS or n_phys < MAX_CAUSES)]
+    if not cands:
+        return final, chosen, None
+
+    held = tuple(n for c in chosen for n in engine.EFFECT_PARAMS[c])
+    dt = ds.dt_min
+    # Local grids only (the search rate's grids already covered the larger values): dead
+    # time 0-4 samples, lag 0.5-8 samples. (A force-channel delay is fractional at any rate
+    # and judged before any physics.)
+    start = {'current_delay': {'dead_time': 2 * dt}, 'current_lag': {'tau_lag': 2 * dt}}
+
+    def child(e):
+        return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta={**final.eta, **start[e]},
+                                  start_theta=final.theta, new=(), sweeps=1, fixed=held,
+                                  local=(0.25, 0.5, 1.0, 2.0, 4.0))
+
+    pool = _parallel({e: ('fine timing: +' + e, child(e)) for e in cands}, tick)
+    best, _, stats = _choose(pool, final.test, final.prediction)
+    if best is not None and stats[best]['t'] < T_FINE:
+        stats[best]['accepted'] = False
+        best = None
+    step = _step_record(chosen, stats)
+    step['stage'] = 'fine timing (full rate)'
+    if best is None:
+        if 'current_lag' in chosen and 'current_delay' in allowed:
+            # A lag chosen at the search rate may be a dead time of a sample or two: the same
+            # number of parameters, so the lower held-out error decides.
+            swap = tuple('current_delay' if c == 'current_lag' else c for c in chosen)
+            eta = {**final.eta, 'dead_time': round(final.eta['tau_lag'] / dt) * dt}
+            alt = engine.fit(ds, swap, start_eta=eta, start_theta=final.theta, new=(),
+                             sweeps=1)
+            tick('fine timing: lag -> dead time')
+            step['swap_lag_for_dead_time'] = round(fold_stats(alt.test, final.test)[0], 4)
+            if alt.test.sum() < final.test.sum():
+                return alt, list(swap), step
+        return final, chosen, step
+    added = list(chosen) + [best]
+    f = engine.fit(ds, tuple(added), start_eta=pool[best].eta, start_theta=pool[best].theta,
+                   new=(), sweeps=1, local=(0.8, 1.0, 1.25))
+    tick('fine timing: refit')
+    f = f if f.sse < pool[best].sse else pool[best]
+    # With the new timing cause, an earlier one may have become redundant.
+    added, f = backward(ds, added, {tuple(added): f, tuple(chosen): final},
+                        drop_loss={}, skip=(best,), tick=tick)
+    return f, added, step
 
 
 def outer_mse(ds, fit):
@@ -669,6 +755,13 @@ def residual_map(ds, fit, bins=8):
                                                      for p, q in zip(band_pow, force_pow)]}}
 
 
+def _floor(records):
+    try:
+        return noise.estimate(records)
+    except ValueError:  # no repeated input history: the floor is not estimable
+        return None
+
+
 def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_rate=SEARCH_RATE,
         outer=True, nominal_driver=None):
     """Diagnose records; return a ``DiagnosisResult`` (see ``Diagnosis`` for the method).
@@ -690,6 +783,9 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     physics = [e for e in effects if e in engine.EFFECTS and e not in untestable]
     sensors = [e for e in effects if e in engine.SENSOR_EFFECTS]
     tick = progress or (lambda *a, **k: None)
+    # The noise floor and the driver depend on the data alone: worked out alongside.
+    floor_job = _background(lambda: _floor(full))
+    driver_job = _background(lambda: identify_driver(full, nominal_driver))
     base = engine.fit(ds, ())
     tick('baseline')
     chosen, fits, singles, steps, stage_amb, parent0 = _forward(ds, base, sensors, physics,
@@ -706,6 +802,14 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
         ds = engine.Dataset(full, n_folds=n_folds, outer=outer)
         base, final, chosen = _full_rate(ds, base, final, chosen, drop_loss, ds_search,
                                          final_search, tick)
+        if ds.dt_min < 0.75 * ds_search.dt_min:
+            start = final if chosen else base
+            final, chosen, fine = _fine_timing(ds, start, chosen, physics + sensors, tick)
+            if fine is not None:
+                steps = tuple(steps) + (fine,)
+            if fine is not None and chosen and chosen[-1] in fine['candidates']:
+                e = chosen[-1]
+                drop_loss[e] = fold_stats(final.test, start.test)[0]
     # Per-cause "alone" figures at the full rate: the effect's parameters from the final
     # fit, linear parameters refitted per fold (one regressor evaluation each).
     cause_test = {}
@@ -717,7 +821,7 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     input_kind = sorted({r.input_kind for r in full})[0]
     order = sorted(chosen, key=lambda e: (e not in engine.SENSOR_EFFECTS,
                                           -drop_loss.get(e, 0.0)))
-    driver = identify_driver(full, nominal_driver)
+    driver = driver_job()
     if driver and driver.get('deviations'):
         order += driver['deviations']
     locations = {e: location(e, input_kind) for e in order}
@@ -737,10 +841,7 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
                    'source': 'inner folds (no outer blocks)'}
     heldout['baseline_nrmse'] = float(np.sqrt(heldout['baseline_mse']) / heldout['std'])
     heldout['extended_nrmse'] = float(np.sqrt(heldout['extended_mse']) / heldout['std'])
-    try:
-        floor = noise.estimate(full)
-    except ValueError:
-        floor = None
+    floor = floor_job()
     ambiguous = tuple(p for p in ambiguous if set(p) & set(order))
     phys = [e for e in order if locations[e] != 'sensor']
     verdict = 'none' if not phys else ('ambiguous' if ambiguous else 'named')

@@ -285,6 +285,45 @@ def _solve(g, h):
     return np.linalg.solve(gs, (h / d)[..., None])[..., 0] / d
 
 
+def _passive(gs, hs, th, i_max):
+    """Keep damping and yield force non-negative over the data's current range.
+
+    A passive damping element needs ``c(i) = c0 + c1 i >= 0`` and ``fy(i) = fy0 + fy1 g >= 0``
+    for ``0 <= i <= i_max`` (else ``F_d`` is not monotone in ``u`` and a simulation beyond the
+    fitted motions runs away). Least squares solutions that break it are re-solved with the
+    end-point values ``(c(0), c(i_max), fy(0), fy(i_max))`` bounded at zero (active set: the
+    most negative is fixed at zero until none is).
+    """
+    def ends(t):
+        return np.stack([t[..., 1], t[..., 1] + t[..., 2] * i_max,
+                         t[..., 3], t[..., 3] + t[..., 4] * i_max], axis=-1)
+
+    tol = 1e-9 * (np.abs(ends(th)).max(axis=-1) + 1e-300)
+    bad = np.nonzero((ends(th) < -tol[:, None]).any(axis=-1))[0]
+    if not bad.size:
+        return th
+    p = th.shape[1]
+    # theta = S theta', theta' = (f0, c(0), c(i_max), fy(0), fy(i_max), gas...)
+    s_mat = np.eye(p)
+    s_mat[2, 1], s_mat[2, 2] = -1.0 / i_max, 1.0 / i_max
+    s_mat[4, 3], s_mat[4, 4] = -1.0 / i_max, 1.0 / i_max
+    th = th.copy()
+    for k in bad:
+        g = s_mat.T @ gs[k] @ s_mat
+        h = s_mat.T @ hs[k]
+        dg = np.diagonal(g)
+        free = [j for j in range(p) if dg[j] > 1e-12 * dg.max()]  # an empty column stays 0
+        for _ in range(5):
+            z = np.zeros(p)
+            z[free] = _solve(g[np.ix_(free, free)], h[free])
+            neg = [j for j in (1, 2, 3, 4) if j in free and z[j] < 0]
+            if not neg:
+                break
+            free.remove(min(neg, key=lambda j: z[j]))
+        th[k] = s_mat @ z
+    return th
+
+
 class CVResult:
     """Held-out and training errors of one model at one ``eta``."""
 
@@ -321,7 +360,7 @@ class CVResult:
         # All data and the K training sets (all but fold k) in one batched solve.
         gs = np.concatenate([gt[None], gt[None] - gk])
         hs = np.concatenate([ht[None], ht[None] - hk])
-        th = _solve(gs, hs)
+        th = _passive(gs, hs, _solve(gs, hs), ds.i_max)
         self.theta = th[0]
         self.sse = float(et - 2 * self.theta @ ht + self.theta @ gt @ self.theta)
         self.n = nk

@@ -345,12 +345,68 @@ def spikes(name, x, limit=None):
                          threshold=thr, fraction=(nw + no) / x.size)
 
 
-def _lowpass(y, dt, cutoff):
+def _lowpass(y, dt, cutoff, order=2):
     fs = 1.0 / dt
     if cutoff is None or cutoff >= 0.45 * fs or y.size <= 30:
         return y
-    b, a = signal.butter(2, cutoff / (0.5 * fs))
-    return signal.filtfilt(b, a, y, padlen=min(3 * max(len(a), len(b)), y.size - 1))
+    sos = signal.butter(order, cutoff / (0.5 * fs), output='sos')
+    return signal.sosfiltfilt(sos, y, padlen=_padlen(y.size, fs, cutoff, order))
+
+
+def _padlen(n, fs, cutoff, order):
+    """Odd-extension length of a zero-phase filter: three periods of the cut-off."""
+    if order == 2:  # the historical derived velocity (filtfilt's own default)
+        return min(9, n - 1)
+    return int(min(n - 1, max(15, 3.0 * fs / cutoff)))
+
+
+BAND_SNR = 10.0      # spectrum above this many times the white-noise level: motion
+BAND_FACTOR = 1.6    # cut-off = this x the motion band's edge (4th-order zero-phase: < 1.2 %)
+BAND_MIN = 5.0       # [Hz] lowest automatic cut-off
+BAND_RANGE = 1e-10   # noise level at least this fraction of the spectrum's peak (100 dB)
+
+
+def motion_cutoff(y, dt):
+    """Cut-off [Hz] of ``motion_band`` (None: no low-pass)."""
+    return motion_band(y, dt)[0]
+
+
+def motion_band(y, dt):
+    """Low-pass cut-off [Hz] that keeps the motion of ``y`` and drops its white sensor noise.
+
+    ``y`` is a signal whose sensor noise is white (a measured displacement or velocity).
+    Welch spectrum (about 2 s segments); the noise level is the median spectrum above 0.3 of
+    the sampling rate (robust to tones there, e.g. from rounded time stamps), at least
+    ``BAND_RANGE`` times the spectrum's peak; the motion band
+    ends at the highest frequency below 0.25 of the sampling rate whose spectrum is above
+    ``BAND_SNR`` times it. Returns ``(cut-off, white-noise RMS above it)``: the cut-off is
+    ``BAND_FACTOR`` times that edge, within ``BAND_MIN`` and 0.4 of the sampling rate, or None
+    when nothing stands above the noise or the record is too short to tell (no filtering).
+    """
+    y = np.asarray(y, dtype=float)
+    fs = 1.0 / dt
+    if y.size < 256 or not np.all(np.isfinite(y)):
+        return None, 0.0
+    nper = int(min(y.size // 4, 2 ** round(math.log2(max(64.0, 2.0 * fs)))))
+    f, p = signal.welch(y, fs, nperseg=nper, detrend='linear')
+    top = f >= 0.3 * fs
+    # Never more than BAND_RANGE below the peak: a deterministic residue (stamps rounded in a
+    # repeating pattern, quantisation) leaves a near-zero median that window leakage beats.
+    white = float(np.median(p[top])) if top.any() else 0.0
+    noise = max(white, BAND_RANGE * float(p.max()))
+    if not noise > 0.0:
+        return None, 0.0
+    band = (f > 0) & (f < 0.25 * fs)
+    above = np.nonzero(band & (p > BAND_SNR * noise))[0]
+    if not above.size:
+        return None, 0.0
+    cut = float(min(max(BAND_FACTOR * f[above[-1]], BAND_MIN), 0.4 * fs))
+    return cut, math.sqrt(white * (0.5 * fs - cut))
+
+
+def smooth_velocity(v, dt, cutoff):
+    """Zero-phase 4th-order Butterworth low-pass of a measured velocity (no phase lag)."""
+    return _lowpass(np.asarray(v, dtype=float), dt, cutoff, order=4)
 
 
 def _ncc_shift(a, b, w, lmax, m):
@@ -374,7 +430,7 @@ def _ncc_shift(a, b, w, lmax, m):
     return float(j - lmax + np.clip(frac, -1.0, 1.0)), float(r[j])
 
 
-def velocity_check(x, v, dt, cutoff=25.0, mask=None):
+def velocity_check(x, v, dt, cutoff=25.0, mask=None, order=2):
     """Compare a measured velocity with the zero-phase derivative of displacement.
 
     Both are compared after the same zero-phase low-pass. Raises ``DataError`` when the gain
@@ -389,8 +445,8 @@ def velocity_check(x, v, dt, cutoff=25.0, mask=None):
     x = np.asarray(x, dtype=float)
     v = np.asarray(v, dtype=float)
     n = x.size
-    vd = derive_velocity(x, dt, cutoff)
-    vf = _lowpass(v, dt, cutoff)
+    vd = derive_velocity(x, dt, cutoff, order)
+    vf = _lowpass(v, dt, cutoff, order)
     edge = min(n // 10, int(3.0 / (cutoff * dt)) if cutoff else 10)
     lmax = int(min(50, max(3, round(0.02 / dt)), max(1, n // 20)))
     m = edge + lmax
@@ -418,7 +474,7 @@ def velocity_check(x, v, dt, cutoff=25.0, mask=None):
                         '--derive-velocity')
     e = (v - vf)[w]
     noise = 1.4826 * float(np.median(np.abs(e - np.median(e)))) if e.size else 0.0
-    ed = (vd - _lowpass(vd, dt, cutoff))[w]
+    ed = (vd - _lowpass(vd, dt, cutoff, order))[w]
     noise_d = 1.4826 * float(np.median(np.abs(ed - np.median(ed)))) if ed.size else 0.0
     ratio = noise / rms_d if rms_d > 0 else 0.0
     skewed = abs(shift) >= SHIFT_TOL
@@ -439,5 +495,5 @@ def velocity_check(x, v, dt, cutoff=25.0, mask=None):
                      f'{100 * nums["noise_ratio_derived"]:.2f} %)')
     return vd, finding('velocity_inconsistent', 'velocity', 'corrected',
                        'measured velocity ' + ' and '.join(parts) + f' (gain {gain:.4f}); '
-                       f'replaced by the zero-phase derivative of displacement '
-                       f'({cutoff:g} Hz)', **nums)
+                       'replaced by the zero-phase derivative of displacement '
+                       f'({"no low-pass" if cutoff is None else f"{cutoff:.3g} Hz"})', **nums)
