@@ -24,7 +24,6 @@ import warnings
 
 import numpy as np
 from scipy import io as sio
-from scipy import signal
 
 
 CANONICAL = ('time', 'displacement', 'velocity', 'force', 'current_command', 'voltage_command',
@@ -139,12 +138,7 @@ def derive_velocity(x, dt, cutoff=25.0, order=2):
     """Velocity from displacement: zero-phase Butterworth (``order``, ``cutoff`` Hz) + gradient."""
     from mr_suspension.identification import sensors
 
-    fs = 1.0 / dt
-    xs = x
-    if cutoff is not None and cutoff < 0.45 * fs and x.size > 30:
-        sos = signal.butter(order, cutoff / (0.5 * fs), output='sos')
-        xs = signal.sosfiltfilt(sos, x, padlen=sensors._padlen(x.size, fs, cutoff, order))
-    return np.gradient(xs, dt)
+    return np.gradient(sensors.lowpass(x, dt, cutoff, order), dt)
 
 
 def velocity_band(x, dt, opts):

@@ -358,6 +358,11 @@ def _children(ds, chosen, candidates, current, tick):
     return pool
 
 
+def _symmetric(effects):
+    """Return ``effects`` with the asymmetric current lag replaced by the symmetric one."""
+    return tuple('current_lag' if c == 'current_lag_asymmetric' else c for c in effects)
+
+
 def _symmetric_lag_fit(ds, fit, local=False):
     """Refit ``fit`` with one lag (the geometric mean of its rise/fall) instead of two.
 
@@ -365,7 +370,7 @@ def _symmetric_lag_fit(ds, fit, local=False):
     """
     eta = dict(fit.eta)
     eta['tau_lag'] = float(np.sqrt(max(eta['tau_rise'], 1e-4) * max(eta['tau_fall'], 1e-4)))
-    down = tuple('current_lag' if c == 'current_lag_asymmetric' else c for c in fit.effects)
+    down = _symmetric(fit.effects)
     if local:
         return engine.fit(ds, down, start_eta=eta, start_theta=fit.theta, new=(), sweeps=1)
     return engine.fit(ds, down, start_eta=eta, start_theta=fit.theta, new=('current_lag',))
@@ -627,12 +632,11 @@ def _full_rate(ds, base, final, chosen, drop_loss, ds_search, final_search, tick
     chosen, final = backward(ds, chosen, fits, drop_loss=drop_loss, skip=clear, tick=tick)
     if 'current_lag_asymmetric' in chosen and sym is not None:
         sub = sym()
-        if sub.effects != tuple('current_lag' if c == 'current_lag_asymmetric' else c
-                                for c in final.effects):
+        if sub.effects != _symmetric(final.effects):
             sub = _symmetric_lag_fit(ds, final, local=True)
         tick('symmetric lag (full rate)')
         if not accepted(final.test, sub.test):
-            chosen = ['current_lag' if c == 'current_lag_asymmetric' else c for c in chosen]
+            chosen = list(_symmetric(chosen))
             drop_loss['current_lag'] = drop_loss.pop('current_lag_asymmetric', 0.0)
             final = sub
     return base, final, chosen
@@ -642,15 +646,15 @@ def _fine_timing(ds, final, chosen, allowed, tick):
     """Judge timing effects finer than the search rate's step at the full rate.
 
     A dead time or lag of a sample or two (a DAC's hold, a fast driver) is a fraction of a
-    decimated sample: the selection cannot see it, but it leaves
-    an error at every current edge. Each ``FINE`` effect not chosen yet is fitted on top of
+    decimated sample: the selection cannot see it, but it leaves an error at every current
+    edge. Each ``FINE`` effect not chosen yet is fitted on top of
     the final model at the full rate and accepted by the selection's rule with a fold t of
     at least ``T_FINE`` (a second look at the data after the selection).
     Returns ``(final, chosen, step record or None)``.
     """
-    n_phys = len([c for c in chosen if c not in engine.SENSOR_EFFECTS])
-    cands = [e for e in FINE if e in allowed and e not in chosen and _compatible(chosen, e)
-             and (e in engine.SENSOR_EFFECTS or n_phys < MAX_CAUSES)]
+    if len([c for c in chosen if c not in engine.SENSOR_EFFECTS]) >= MAX_CAUSES:
+        return final, chosen, None
+    cands = [e for e in FINE if e in allowed and e not in chosen and _compatible(chosen, e)]
     if not cands:
         return final, chosen, None
 

@@ -345,7 +345,8 @@ def spikes(name, x, limit=None):
                          threshold=thr, fraction=(nw + no) / x.size)
 
 
-def _lowpass(y, dt, cutoff, order=2):
+def lowpass(y, dt, cutoff, order=2):
+    """Zero-phase Butterworth low-pass (``order``, ``cutoff`` Hz; None or >= 0.45 fs: none)."""
     fs = 1.0 / dt
     if cutoff is None or cutoff >= 0.45 * fs or y.size <= 30:
         return y
@@ -406,7 +407,7 @@ def motion_band(y, dt):
 
 def smooth_velocity(v, dt, cutoff):
     """Zero-phase 4th-order Butterworth low-pass of a measured velocity (no phase lag)."""
-    return _lowpass(np.asarray(v, dtype=float), dt, cutoff, order=4)
+    return lowpass(np.asarray(v, dtype=float), dt, cutoff, order=4)
 
 
 def _ncc_shift(a, b, w, lmax, m):
@@ -446,7 +447,7 @@ def velocity_check(x, v, dt, cutoff=25.0, mask=None, order=2):
     v = np.asarray(v, dtype=float)
     n = x.size
     vd = derive_velocity(x, dt, cutoff, order)
-    vf = _lowpass(v, dt, cutoff, order)
+    vf = lowpass(v, dt, cutoff, order)
     edge = min(n // 10, int(3.0 / (cutoff * dt)) if cutoff else 10)
     lmax = int(min(50, max(3, round(0.02 / dt)), max(1, n // 20)))
     m = edge + lmax
@@ -474,7 +475,7 @@ def velocity_check(x, v, dt, cutoff=25.0, mask=None, order=2):
                         '--derive-velocity')
     e = (v - vf)[w]
     noise = 1.4826 * float(np.median(np.abs(e - np.median(e)))) if e.size else 0.0
-    ed = (vd - _lowpass(vd, dt, cutoff, order))[w]
+    ed = (vd - lowpass(vd, dt, cutoff, order))[w]
     noise_d = 1.4826 * float(np.median(np.abs(ed - np.median(ed)))) if ed.size else 0.0
     ratio = noise / rms_d if rms_d > 0 else 0.0
     skewed = abs(shift) >= SHIFT_TOL
