@@ -152,3 +152,36 @@ def test_dead_time_below_the_search_step_is_found_at_the_full_rate(dead_samples)
     assert dyn['dead_time'] == pytest.approx(dead_samples * 1e-3, abs=1e-9)
     assert any(s.get('stage') == 'fine timing (full rate)' for s in res.steps)
     assert res.heldout['extended_nrmse'] < 1.15 * 3.0 / np.std(cols['force'])
+
+
+def test_current_changes_at_moderate_speed_make_current_dynamics_testable():
+    """Current steps while the stroke rate is 5-20 % of its peak still test a lag.
+
+    Written here: fast strokes at one current, current steps only during slow motion; the
+    force is a hand-written Bingham law driven by a first-order lagged current (25 ms).
+    """
+    rng = np.random.default_rng(3)
+    rate = 1000.0
+    t = np.arange(int(12 * rate)) / rate
+    slow = (t % 3.0) < 1.5
+    # Slow phases: 0.04 m/s peak; fast phases: 0.4 m/s peak (the 99th percentile).
+    x = np.where(slow, 0.005 * np.sin(2 * np.pi * 4 / 3 * t), 0.016 * np.sin(2 * np.pi * 4 * t))
+    v = np.gradient(x, 1.0 / rate)
+    ph = t % 0.25
+    cmd = np.where(slow & (ph >= 0.0625) & (ph < 0.1875), 0.9, 0.1)
+    i_f = np.empty_like(cmd)
+    a = 1.0 - np.exp(-1.0 / (rate * 0.025))
+    y = cmd[0]
+    for k, u in enumerate(cmd):
+        y += a * (u - y)
+        i_f[k] = y
+    f = (500 + 900 * i_f) * v + (50 + 800 * i_f) * np.tanh(v / 0.01)
+    f = f + rng.normal(0.0, 2.0, t.size)
+    rec = _record({'time': t, 'displacement': x, 'velocity': v, 'force': f,
+                   'current_command': cmd})
+    untestable, notes = diagnose.testability([rec])
+    assert 'current_lag' not in untestable, notes
+    assert notes['current_edges']['rise_full_scale_equivalents'] >= 2.0
+    # Under the old 20 % bar these steps would not count.
+    moving = np.abs(v) > 0.2 * np.percentile(np.abs(v), 99)
+    assert np.sum(np.abs(np.diff(cmd))[moving[1:]]) < 0.8

@@ -6,15 +6,23 @@ Force (stroke ``x``, + = extension; stroke rate ``v``; field current ``i``)::
     F_d = M(u) [c(i) u + Fy(i) y(u)]                      (damping element, seed 003 eq. 5.2)
     c(i) = c0 + c1 i,  Fy(i) = fy0 + fy1 g(i),  g(i) = i_s tanh(i / i_s)   (saturation)
     M(u) = (1 - kappa E) (1 + rho tanh(u / v_y))          (thermal fade, direction asymmetry)
-    y(u) = tanh(u / v_y), or the Dahl state ``dz/dx_d = (1 - z sgn u) / x_h`` (hysteresis),
-           or w / (1 + |w|^n)^(1/n), w = u / v_y (yield shape, exponent n = yield_n)
+    y(u) = S(u) = tanh(u / v_y), or w / (1 + |w|^n)^(1/n), w = u / v_y (yield shape, n = yield_n)
+    y    = (1 - w_h) S(u) + w_h z                         (hysteresis: share w_h of the yield
+    dz/dt = (u / x_h) [1 - |z|^n_h ((1 - r_h) sgn(u z) + r_h)]      force in a Bouc-Wen loop)
     dF_d/dt = k1 (v - u)                                  (series stiffness k1, seed 000 Fig. 7)
     dE/dt = F_d u - E / tau_th                            (stored heat from dissipated energy)
 
 ``u`` is the damping-element velocity: ``u = v`` without series stiffness, else the root of
 the backward-Euler balance ``F_d(u) = F_d,prev + k1 dt (v - u)``. Every effect is off at its
 neutral value: ``i_s = 0``, ``x_h = 0``, ``k1 = 0``, ``kg1 = kg2 = 0``, ``kappa = 0``,
-``rho = 0``. The Dahl step is exact for a constant ``u`` over the step:
+``rho = 0``. The hysteretic state is the normalised Bouc-Wen state (Wen 1976, Spencer et al.
+1997: ``|z| <= 1``, pre-yield length ``x_h``, exponent ``n_h >= 1``, ``r_h = gamma / (beta +
+gamma)`` shapes the unloading branch); ``n_h = 1, r_h = 0, w_h = 1`` is the Dahl model
+``dz/dx_d = (1 - z sgn u) / x_h`` used before. Its step is exact for a constant ``u`` over the
+step: in the direction of motion ``zeta = z sgn u`` obeys the autonomous
+``dzeta/dxi = g(zeta)``, ``xi = |u| t / x_h``, so ``zeta+ = zeta + Z(xi0 + |u| dt / x_h) - Z(xi0)``
+with ``Z`` the solution from ``zeta = -1`` tabulated once per parameter set (RK4, cubic Hermite
+look-up, ``bw_table``) and ``xi0 = Z^-1(zeta)``; for Dahl it is the closed form
 ``z+ = sgn u + (z - sgn u) exp(-|u| dt / x_h)``.
 
 The state vector ``s`` (length ``EXT_NSTATE``, all zeros = at rest) holds
@@ -25,6 +33,7 @@ Current dynamics (dead time, lags) are not here: they belong to the driver (core
 """
 
 from dataclasses import asdict, dataclass, fields
+import functools
 import math
 
 from numba import njit
@@ -36,7 +45,9 @@ from mr_suspension.core.validation import as_number, build, check_declared, para
 EXT_NSTATE = 8
 S_Z, S_FD, S_E, S_U, S_Y, S_M, S_G, S_DF = range(8)
 (P_F0, P_C0, P_C1, P_FY0, P_FY1, P_VY, P_ISAT, P_XH, P_K1, P_KG1, P_KG2, P_KAPPA, P_TAUTH,
- P_RHO, P_YN) = range(15)
+ P_RHO, P_YN, P_HW, P_HN, P_HR) = range(18)
+P_TAB = 18  # Bouc-Wen table (bw_table) appended to the parameter array: [h_xi, zeta.., g..]
+BW_NT = 512
 RHO_MAX = 0.5
 
 
@@ -51,7 +62,10 @@ class ExtendedDamperParams:
     (0 = off), ``tau_thermal`` [s] cooling time constant; ``rho`` [-] rebound/compression
     asymmetry, ``|rho| <= 0.5``; ``yield_n`` [-] exponent of the algebraic yield sigmoid
     ``w / (1 + |w|^n)^(1/n)`` instead of ``tanh(w)`` (0 = off: n = 2 is the algebraic sigmoid,
-    n near 1 a slow arctan-like tail, large n a sharp Bingham corner).
+    n near 1 a slow arctan-like tail, large n a sharp Bingham corner); ``hyst_weight`` [-]
+    share ``w_h`` of the yield force carried by the hysteretic (Bouc-Wen) state, ``hyst_n``
+    [-] its exponent ``n_h``, ``hyst_r`` [-] its unloading shape ``r_h = gamma/(beta+gamma)``
+    (all three used only with ``x_h > 0``; 1, 1, 0 is the Dahl loop).
     """
 
     # Very wide ranges: the diagnosis fit must be able to represent any real damper; they only
@@ -72,6 +86,11 @@ class ExtendedDamperParams:
     rho: float = param(0.0, -RHO_MAX, RHO_MAX, '', 'rebound/compression asymmetry')
     yield_n: float = param(0.0, 0.3, 20.0, '', 'yield sigmoid exponent', off=0.0,
                            required=False)
+    hyst_weight: float = param(1.0, 1.0e-3, 1.0, '', 'share of the yield force in the '
+                               'hysteretic branch', required=False)
+    hyst_n: float = param(1.0, 1.0, 6.0, '', 'Bouc-Wen exponent', required=False)
+    hyst_r: float = param(0.0, -1.0, 0.5, '', 'Bouc-Wen unloading shape gamma/(beta+gamma)',
+                          required=False)
 
     law = 'extended'
 
@@ -79,8 +98,14 @@ class ExtendedDamperParams:
         check_declared(self)
 
     def to_array(self):
-        """Return the float64 parameter array ``p`` of ``extended_force``."""
-        return np.array([float(getattr(self, f.name)) for f in fields(self)], dtype=np.float64)
+        """Return the float64 parameter array ``p`` of ``extended_force``.
+
+        A Bouc-Wen loop other than Dahl appends its table (``bw_table``) after the fields.
+        """
+        p = np.array([float(getattr(self, f.name)) for f in fields(self)], dtype=np.float64)
+        if self.x_h > 0.0 and not (self.hyst_n == 1.0 and self.hyst_r == 0.0):
+            p = np.concatenate([p, _cached_table(self.hyst_n, self.hyst_r)])
+        return p
 
     def to_dict(self):
         """Return the parameters as a plain dict (JSON/YAML friendly)."""
@@ -102,35 +127,136 @@ class ExtendedDamperParams:
     def from_array(cls, p):
         """Build from a parameter array in field order."""
         names = [f.name for f in fields(cls)]
-        if len(p) != len(names):
+        if len(p) != len(names) and not (len(p) == P_TAB + 1 + 2 * BW_NT):
             raise ValueError(f'ExtendedDamperParams: expected {len(names)} values, got {len(p)}')
+        p = p[:len(names)]
         return cls(**{n: float(v) for n, v in zip(names, p)})
 
 
 @njit(cache=True, fastmath=True, error_model='numpy')
+def _bw_g(zeta, n, r):
+    """Bouc-Wen slope ``dzeta/dxi = 1 - |zeta|^n ((1 - r) sgn(zeta) + r)`` (module docstring)."""
+    a = abs(zeta) ** n
+    return 1.0 - a if zeta >= 0.0 else 1.0 + a * (1.0 - 2.0 * r)
+
+
+@njit(cache=True)
+def bw_table(n, r):
+    """Tabulate ``zeta(xi)`` from ``zeta = -1`` on a uniform ``xi`` grid; return the array part.
+
+    ``[h_xi, zeta_0..zeta_{N-1}, g_0..g_{N-1}]`` (``N = BW_NT``): RK4 with 8 steps per interval
+    up to ``xi = 40 / n + 6`` (``1 - zeta`` below 1e-15: the loop is closed), ``g`` the slope.
+    """
+    nt = BW_NT
+    h = (40.0 / n + 6.0) / (nt - 1)
+    out = np.empty(1 + 2 * nt)
+    out[0] = h
+    z = -1.0
+    sub = 8
+    hs = h / sub
+    for k in range(nt):
+        if k > 0:
+            for _ in range(sub):
+                k1 = _bw_g(z, n, r)
+                k2 = _bw_g(z + 0.5 * hs * k1, n, r)
+                k3 = _bw_g(z + 0.5 * hs * k2, n, r)
+                k4 = _bw_g(z + hs * k3, n, r)
+                z = min(z + hs * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0, 1.0)
+        out[1 + k] = z
+        out[1 + nt + k] = _bw_g(z, n, r)
+    return out
+
+
+@functools.lru_cache(maxsize=512)
+def _cached_table(n, r):
+    t = bw_table(n, r)
+    t.flags.writeable = False
+    return t
+
+
+@njit(cache=True, fastmath=True, error_model='numpy')
+def _bw_at(p, xi):
+    """Cubic Hermite look-up of the tabulated ``zeta(xi)`` (held beyond the table)."""
+    nt = BW_NT
+    h = p[P_TAB]
+    q = xi / h
+    if q >= nt - 1:
+        return p[P_TAB + nt]
+    if q <= 0.0:
+        return -1.0
+    k = int(q)
+    t = q - k
+    z0 = p[P_TAB + 1 + k]
+    z1 = p[P_TAB + 2 + k]
+    g0 = p[P_TAB + 1 + nt + k] * h
+    g1 = p[P_TAB + 2 + nt + k] * h
+    t2 = t * t
+    t3 = t2 * t
+    return ((2.0 * t3 - 3.0 * t2 + 1.0) * z0 + (t3 - 2.0 * t2 + t) * g0
+            + (3.0 * t2 - 2.0 * t3) * z1 + (t3 - t2) * g1)
+
+
+@njit(cache=True, fastmath=True, error_model='numpy')
+def _bw_xi(p, zeta):
+    """Inverse look-up ``xi`` with ``zeta(xi) = zeta`` (bisection on the table, one Newton)."""
+    nt = BW_NT
+    h = p[P_TAB]
+    if zeta <= -1.0:
+        return 0.0
+    lo = 0
+    hi = nt - 1
+    if zeta >= p[P_TAB + nt]:
+        return h * (nt - 1)
+    while hi - lo > 1:
+        mid = (lo + hi) >> 1
+        if p[P_TAB + 1 + mid] <= zeta:
+            lo = mid
+        else:
+            hi = mid
+    z0 = p[P_TAB + 1 + lo]
+    z1 = p[P_TAB + 1 + hi]
+    xi = h * (lo + (zeta - z0) / (z1 - z0) if z1 > z0 else lo)
+    g = p[P_TAB + 1 + nt + lo]
+    if g > 1e-12:
+        xi += (zeta - _bw_at(p, xi)) / g
+        xi = min(max(xi, h * lo), h * hi)
+    return xi
+
+
+@njit(cache=True, fastmath=True, error_model='numpy')
+def _hysteretic(p, z, u, dt):
+    """Step of the Bouc-Wen state over ``dt`` at constant ``u``: ``(z+, dz+/du)``."""
+    a = dt / p[P_XH]
+    if p.shape[0] <= P_TAB:  # Dahl: closed form
+        if u > 0.0:
+            e = math.exp(-a * u)
+            return 1.0 + (z - 1.0) * e, a * (1.0 - z) * e
+        if u < 0.0:
+            e = math.exp(a * u)
+            return -1.0 + (z + 1.0) * e, a * (z + 1.0) * e
+        return z, a * (1.0 - abs(z))
+    n = p[P_HN]
+    r = p[P_HR]
+    if u == 0.0:
+        return z, 0.5 * a * (_bw_g(z, n, r) + _bw_g(-z, n, r))
+    sg = 1.0 if u > 0.0 else -1.0
+    zeta = sg * z
+    xi0 = _bw_xi(p, zeta)
+    zn = zeta + _bw_at(p, xi0 + a * abs(u)) - _bw_at(p, xi0)
+    zn = min(max(zn, -1.0), 1.0)
+    return sg * zn, a * _bw_g(zn, n, r)
+
+
+@njit(cache=True, fastmath=True, error_model='numpy')
 def _element(p, s, u, i, dt):
-    """Damping-element force ``F_d(u)`` and ``dF_d/du`` with the intermediates (y, M, g)."""
+    """Damping-element force ``F_d(u)``, ``dF_d/du``, intermediates (y, M, g), hysteretic state."""
     vy = p[P_VY]
     isat = p[P_ISAT]
     g = isat * fast_tanh(i / isat) if isat > 0.0 else i
     c = p[P_C0] + p[P_C1] * i
     fy = p[P_FY0] + p[P_FY1] * g
     xh = p[P_XH]
-    if xh > 0.0:
-        z = s[S_Z]
-        a = dt / xh
-        if u > 0.0:
-            e = math.exp(-a * u)
-            y = 1.0 + (z - 1.0) * e
-            dy = a * (1.0 - z) * e
-        elif u < 0.0:
-            e = math.exp(a * u)
-            y = -1.0 + (z + 1.0) * e
-            dy = a * (z + 1.0) * e
-        else:
-            y = z
-            dy = a * (1.0 - abs(z))
-    elif p[P_YN] > 0.0:
+    if p[P_YN] > 0.0:
         yn = p[P_YN]
         w = u / vy
         q = 1.0 + abs(w) ** yn
@@ -140,6 +266,16 @@ def _element(p, s, u, i, dt):
     else:
         y = fast_tanh(u / vy)
         dy = (1.0 - y * y) / vy
+    zh = 0.0
+    if xh > 0.0:
+        zh, dzh = _hysteretic(p, s[S_Z], u, dt)
+        wh = p[P_HW]
+        if wh >= 1.0:
+            y = zh
+            dy = dzh
+        else:
+            y = (1.0 - wh) * y + wh * zh
+            dy = (1.0 - wh) * dy + wh * dzh
     mth = 1.0 - p[P_KAPPA] * s[S_E]
     if mth < 0.05:
         mth = 0.05
@@ -147,7 +283,7 @@ def _element(p, s, u, i, dt):
     m = mth * (1.0 + p[P_RHO] * t)
     dm = mth * p[P_RHO] * (1.0 - t * t) / vy
     core = c * u + fy * y
-    return m * core, dm * core + m * (c + fy * dy), y, m, g
+    return m * core, dm * core + m * (c + fy * dy), y, m, g, zh
 
 
 @njit(cache=True, fastmath=True, error_model='numpy')
@@ -168,7 +304,7 @@ def extended_force(p, s, x, v, i, dt):
         tol = 1e-10 * (abs(v) + p[P_VY])
         done = False
         for _ in range(4):
-            fd, dfd, y, m, g = _element(p, s, u, i, dt)
+            fd, dfd, y, m, g, zh = _element(p, s, u, i, dt)
             h = fd - fprev - kdt * (v - u)
             un = u - h / (max(dfd, 0.0) + kdt)
             if abs(un - u) <= tol:
@@ -176,7 +312,7 @@ def extended_force(p, s, x, v, i, dt):
                 break
             u = un
         if not done:
-            fd, dfd, y, m, g = _element(p, s, u, i, dt)
+            fd, dfd, y, m, g, zh = _element(p, s, u, i, dt)
             h = fd - fprev - kdt * (v - u)
             step = abs(v - u) + p[P_VY]
             lo = u
@@ -197,7 +333,7 @@ def extended_force(p, s, x, v, i, dt):
                     lo = hi
             u = 0.5 * (lo + hi)
             for _ in range(200):
-                fd, dfd, y, m, g = _element(p, s, u, i, dt)
+                fd, dfd, y, m, g, zh = _element(p, s, u, i, dt)
                 h = fd - fprev - kdt * (v - u)
                 if h > 0.0:
                     hi = u
@@ -214,11 +350,11 @@ def extended_force(p, s, x, v, i, dt):
         tangent = dfd * kdt / (dfd + kdt)
     else:
         u = v
-        fd, dfd, y, m, g = _element(p, s, u, i, dt)
+        fd, dfd, y, m, g, zh = _element(p, s, u, i, dt)
         tangent = dfd if dfd > 0.0 else 0.0
     force = p[P_F0] + p[P_KG1] * x + p[P_KG2] * x * x + fd
     if p[P_XH] > 0.0:
-        s[S_Z] = y
+        s[S_Z] = zh
     s[S_FD] = fd
     if p[P_KAPPA] > 0.0:
         s[S_E] = s[S_E] * math.exp(-dt / p[P_TAUTH]) + fd * u * dt

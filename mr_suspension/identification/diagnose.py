@@ -24,6 +24,7 @@ from mr_suspension.identification import engine, noise
 
 G_MIN = 0.03
 T_MIN = 2.0
+MOVING = 0.05  # |v| above this share of the 99th-percentile |v|: a current change is seen
 CORR_AMBIG = 0.8
 MAX_CAUSES = 3
 SEARCH_RATE = 250.0
@@ -37,7 +38,7 @@ FINE = ('current_delay', 'current_lag')  # current timing below the search rate'
 T_FINE = 3.0  # fold t the extra full-rate test needs (after the selection: a stricter bar)
 JOBS = max(1, min(4, os.cpu_count() or 1))  # threads for independent fits (kernels drop the GIL)
 NESTED = {('current_lag', 'current_lag_asymmetric')}
-EXCLUSIVE = ({'current_lag', 'current_lag_asymmetric'}, {'hysteresis', 'yield_shape'})
+EXCLUSIVE = ({'current_lag', 'current_lag_asymmetric'},)
 SEPARATING_EXPERIMENT = {
     frozenset(('current_delay', 'current_lag')):
         'current steps at constant speed: a dead time shifts the force edge, a lag rounds it',
@@ -88,7 +89,7 @@ def testability(records):
     rise = fall = 0.0
     for r in records:
         di = np.diff(r.i_in)
-        moving = np.abs(r.velocity[1:]) > 0.2 * v_ref
+        moving = np.abs(r.velocity[1:]) > MOVING * v_ref
         rise += float(np.sum(np.clip(di, 0, None)[moving]))
         fall += float(np.sum(np.clip(-di, 0, None)[moving]))
     if i_range < 0.02 * i_scale or i_range < 1e-3:

@@ -37,7 +37,7 @@ EFFECT_PARAMS = {
     'current_lag': ('tau_lag',),
     'current_lag_asymmetric': ('tau_rise', 'tau_fall'),
     'current_saturation': ('i_sat',),
-    'hysteresis': ('x_h',),
+    'hysteresis': ('x_h', 'hyst_weight', 'hyst_n', 'hyst_r'),
     'series_stiffness': ('k_series',),
     'gas_spring': (),
     'thermal_fade': ('kappa', 'tau_thermal'),
@@ -45,7 +45,10 @@ EFFECT_PARAMS = {
     'yield_shape': ('yield_n',),
 }
 FORCE_DEPENDENT = ('series_stiffness', 'thermal_fade')
-LINEAR_PARAMS = ('rho', 'dead_time', 'delay')  # searched on a linear scale (may be 0 or < 0)
+# Searched on a linear scale (may be 0 or < 0).
+LINEAR_PARAMS = ('rho', 'dead_time', 'delay', 'hyst_r')
+ASYM_GRID = np.array([1.0, 2.5, 6.0, 15.0, 35.0, 80.0, 160.0]) * 1e-3  # rise x fall [s]
+HYST_FEV = 100  # evaluations of the joint search of a new hysteresis loop's shape
 OUTER = -2  # fold label of the untouched outer blocks
 THETA_NAMES = ('f0', 'c0', 'c1', 'fy0', 'fy1')
 GAS_NAMES = ('k_gas1', 'k_gas2')
@@ -181,8 +184,14 @@ class Dataset:
             return self.i_max * np.array([0.15, 0.25, 0.4, 0.6, 1.0, 1.6, 2.5, 4.0, 8.0])
         if name == 'x_h':
             return self.x_ref * np.logspace(-3, -0.3, 10)
+        if name == 'hyst_weight':
+            return np.array([0.1, 0.2, 0.35, 0.5, 0.7, 1.0])
+        if name == 'hyst_n':
+            return np.array([1.0, 1.5, 2.0, 3.0])
+        if name == 'hyst_r':
+            return np.array([-0.6, -0.3, 0.0, 0.2, 0.4])
         if name == 'k_series':
-            return self.f_ref / self.x_ref * np.logspace(0.0, 3.0, 10)
+            return self.f_ref / self.x_ref * np.logspace(-1.0, 3.0, 13)
         if name == 'kappa':
             return np.array([0.01, 0.02, 0.05, 0.1, 0.2, 0.35, 0.5]) / self.e_ref
         if name == 'tau_thermal':
@@ -201,7 +210,8 @@ def neutral_eta():
     """Nonlinear parameters with every effect off (v_y set by the search)."""
     return {'v_y': 0.01, 'dead_time': 0.0, 'tau_lag': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0,
             'i_sat': 0.0, 'x_h': 0.0, 'k_series': 0.0, 'kappa': 0.0, 'tau_thermal': 600.0,
-            'rho': 0.0, 'delay': 0.0, 'yield_n': 0.0}
+            'rho': 0.0, 'delay': 0.0, 'yield_n': 0.0, 'hyst_weight': 1.0, 'hyst_n': 1.0,
+            'hyst_r': 0.0}
 
 
 def current_dynamics(effects, eta):
@@ -223,7 +233,9 @@ def damper_params(effects, eta, theta):
     if 'current_saturation' in effects:
         d['i_sat'] = eta['i_sat']
     if 'hysteresis' in effects:
-        d['x_h'] = eta['x_h']
+        neutral = neutral_eta()
+        for n in EFFECT_PARAMS['hysteresis']:
+            d[n] = eta.get(n, neutral[n])
     if 'series_stiffness' in effects:
         d['k_series'] = eta['k_series']
     if 'thermal_fade' in effects:
@@ -533,6 +545,8 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                     steps = [c - h, c + h]
                 elif name == 'rho':
                     steps = [c - 0.003, c + 0.003] if fine else [c - 0.01, c + 0.01]
+                elif name == 'hyst_r':
+                    steps = [c - 0.01, c + 0.01] if fine else [c - 0.05, c + 0.05]
                 elif c > 0:
                     steps = [c * 0.99, c * 1.01] if fine else [c * 0.95, c * 1.05]
                 else:
@@ -540,7 +554,8 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                 best = state['best'].sse
                 moved = False
                 for val in steps:
-                    if (val < 0 and name != 'delay') or (name == 'rho' and abs(val) > 0.49):
+                    signed = name in ('delay', 'hyst_r')
+                    if (val < 0 and not signed) or (name == 'rho' and abs(val) > 0.49):
                         continue
                     e = dict(state['best'].eta)
                     e[name] = float(val)
@@ -575,14 +590,17 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
     warm = start_eta is not None and len(new) < len(effects)
     if sweeps is None:
         sweeps = 2 if (len(names) > 1 or force_dep) and (not warm or new) else 1
-    if 'tau_rise' in names and 'tau_rise' not in (start_eta or {}):
-        # Symmetric start for the asymmetric lag: a common time constant first.
-        best = None
-        for g in ds.grid('tau_lag'):
-            e = dict(cur_eta())
-            e['tau_rise'] = e['tau_fall'] = float(g)
-            r = ev(e)
-            best = r if best is None or r.sse < best.sse else best
+    if 'tau_rise' in names and ('current_lag_asymmetric' in new
+                                or 'tau_rise' not in (start_eta or {})):
+        # Rise and fall time constants on a joint coarse grid (its diagonal is the symmetric
+        # lag): one after the other, each searched with the other at 0 or at a common value,
+        # they settle far from a strongly asymmetric truth (6 / 115 ms found as 18 / 55 ms).
+        e0 = dict(cur_eta())
+        if 'tau_lag' in e0 and e0.get('tau_lag', 0.0) > 0 and e0.get('tau_rise', 0.0) == 0:
+            e0['tau_rise'] = e0['tau_fall'] = e0['tau_lag']
+        for tr in ASYM_GRID:
+            for tf in ASYM_GRID:
+                ev({**e0, 'tau_rise': float(tr), 'tau_fall': float(tf)})
     for sweep in range(sweeps):
         for name in names + ['v_y']:
             if sweep == 0 and (name in _new_names(new) or start_eta is None
@@ -597,12 +615,23 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                     grid = np.clip(grid, -0.49, 0.49)
                 elif name == 'dead_time':
                     grid = np.maximum(0.0, c + ds.dt_min * np.array([-2, -1, 0, 1, 2]))
+                elif name == 'hyst_r':
+                    grid = np.clip(c + np.array([-0.2, -0.08, 0.0, 0.08, 0.2]), -1.0, 0.5)
                 elif name == 'delay':
                     grid = c + ds.dt_min * np.array([-1.0, -0.4, 0.0, 0.4, 1.0])
                 elif c > 0:
                     grid = c * np.asarray(local)
                 else:
                     grid = ds.grid(name)
+            if name == 'hyst_n' and 'hyst_r' in names:
+                # Exponent and unloading shape trade against each other along a valley:
+                # search them on a joint grid (the 1-D steps then refine).
+                base_eta = dict(cur_eta())
+                rs = (ds.grid('hyst_r') if sweep == 0 else
+                      np.clip(base_eta['hyst_r'] + np.array([-0.15, 0.0, 0.15]), -1.0, 0.5))
+                for gn in grid:
+                    for gr in rs:
+                        ev({**base_eta, 'hyst_n': float(gn), 'hyst_r': float(gr)})
             res = search(name, grid)
             refine(name, res)
             update_theta()
@@ -621,12 +650,10 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                 e[n] = max(0.0, e0[n] - sh * ds.dt_min)
             ev(e)
         polish(['dead_time'] + lags)
-    cont = [n for n in names + ['v_y'] if n != 'dead_time'
-            and (n in LINEAR_PARAMS or state['best'].eta[n] > 0)]
-    if joint and len(cont) >= 2:
-        # Joint Nelder-Mead on log-parameters: coupled pairs (k1 and v_y, x_h and k1) defeat
-        # a coordinate search.
-        scale = {'rho': 1.0, 'delay': 1.0 / ds.dt_min}
+
+    def nelder(cont, fev):
+        """Nelder-Mead on log-parameters (linear for the signed ones) from the best point."""
+        scale = {'rho': 1.0, 'delay': 1.0 / ds.dt_min, 'hyst_r': 1.0}
         z0 = np.array([state['best'].eta[n] * scale[n] if n in scale
                        else math.log(state['best'].eta[n]) for n in cont])
 
@@ -635,19 +662,36 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
             for n, val in zip(cont, z):
                 if n == 'rho':
                     e[n] = float(np.clip(val, -0.49, 0.49))
+                elif n == 'hyst_r':
+                    e[n] = float(np.clip(val, -1.0, 0.5))
                 elif n == 'delay':
                     e[n] = float(val / scale[n])
                 else:
                     e[n] = float(math.exp(val))
             return ev(e).sse
 
-        step = np.array([0.3 if n == 'delay' else 0.15 for n in cont])
+        # Bounded-above parameters step inwards (a weight of 1 can only fall).
+        step = np.array([0.3 if n == 'delay' else -0.15 if n == 'hyst_weight' else 0.15
+                         for n in cont])
         simplex = np.vstack([z0] + [z0 + step[j] * np.eye(len(z0))[j]
                                     for j in range(len(z0))])
         optimize.minimize(obj, z0, method='Nelder-Mead',
-                          options={'maxfev': joint, 'initial_simplex': simplex,
+                          options={'maxfev': fev, 'initial_simplex': simplex,
                                    'xatol': 1e-3, 'fatol': 0.0})
         update_theta()
+
+    shape = [n for n in ('x_h', 'hyst_n', 'hyst_r', 'hyst_weight') if n in names]
+    if ('hysteresis' in new and len(shape) >= 2 and np.isfinite(state['best'].sse)
+            and state['best'].eta['x_h'] > 0):
+        # The loop's length, exponent, unloading shape and weight lie along curved valleys
+        # that the coordinate steps crawl along: a joint search of the loop's shape.
+        nelder(shape, HYST_FEV)
+    cont = [n for n in names + ['v_y'] if n != 'dead_time'
+            and (n in LINEAR_PARAMS or state['best'].eta[n] > 0)]
+    if joint and len(cont) >= 2:
+        # Joint Nelder-Mead on all continuous parameters: coupled pairs (k1 and v_y, x_h and
+        # k1) defeat a coordinate search.
+        nelder(cont, joint)
     if force_dep:
         for _ in range(2):
             update_theta()

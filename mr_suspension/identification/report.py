@@ -23,7 +23,8 @@ EFFECT_TEXT = {
     'current_lag_asymmetric': 'first-order lag with different rise and fall time constants '
                               '(driver plus fluid demagnetisation, seed 000)',
     'current_saturation': 'yield force saturating with current, Fy = fy0 + fy1 i_s tanh(i/i_s)',
-    'hysteresis': 'rate-independent pre-yield loop (Dahl, length x_h) instead of tanh(v/v_y)',
+    'hysteresis': 'rate-independent pre-yield loop: a share w_h of the yield force follows a '
+                  'Bouc-Wen state (length x_h, exponent n_h, unloading shape r_h; Dahl: 1, 1, 0)',
     'series_stiffness': 'compliance k1 in series with the damping element (seed 000)',
     'gas_spring': 'accumulator force kg1 x + kg2 x^2 (seed 000 k2)',
     'thermal_fade': 'force falling as (1 - kappa E) with stored heat E from dissipated energy',
