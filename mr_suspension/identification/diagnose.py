@@ -868,7 +868,8 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     chosen, ambiguous, swaps = _swaps(ds, chosen, fits, singles, stage_amb, tick)
     drop_loss = {}
     chosen, final = backward(ds, chosen, fits, singles, drop_loss, tick=tick)
-    if delay_kept and any(c not in engine.SENSOR_EFFECTS for c in chosen):
+    if (delay_kept and any(c not in engine.SENSOR_EFFECTS for c in chosen)
+            and not final.delay < 0):  # a lead found already needs no second search
         chosen, final = _leading_force(ds, chosen, final, fits, drop_loss, steps, tick)
     if len(chosen) == 1:
         drop_loss[chosen[0]] = fold_stats(final.test, base.test)[0]
