@@ -149,7 +149,16 @@ def _run_roles(script, roles, n):
     path = str(Path(__file__).with_name(script))
     procs = [subprocess.Popen([sys.executable, path, role, str(n)], env=env,
                               stdout=subprocess.PIPE, text=True) for role in roles]
-    return [json.loads(p.communicate(timeout=180)[0].strip().splitlines()[-1]) for p in procs]
+    try:
+        return [json.loads(p.communicate(timeout=180)[0].strip().splitlines()[-1])
+                for p in procs]
+    except subprocess.TimeoutExpired as exc:
+        raise RuntimeError(f'{script}: a role did not finish in 180 s (stuck exchange)') from exc
+    finally:
+        for p in procs:  # never leave a spinning peer behind
+            if p.poll() is None:
+                p.kill()
+                p.wait()
 
 
 def middleware_reference(n=5000):

