@@ -77,6 +77,13 @@ def accepted(child, parent):
     return pooled >= G_MIN and t >= T_MIN
 
 
+def _judged(child, parent):
+    """Judge a child against its parent: ``(accepted, pooled gain, step-record entry)``."""
+    pooled, t, _ = fold_stats(child, parent)
+    ok = bool(pooled >= G_MIN and t >= T_MIN)
+    return ok, pooled, {'gain_mse': round(pooled, 4), 't': round(t, 2), 'accepted': ok}
+
+
 def testability(records):
     """Return ``(untestable, notes)`` from the measured excitation content (not file names)."""
     untestable = []
@@ -511,11 +518,9 @@ def _forward(ds, base, sensors, physics, tick):
     for e in sensors:
         f = engine.fit(ds, (e,), start_eta=base.eta, start_theta=base.theta)
         tick(e)
-        pooled, t, _ = fold_stats(f.test, base.test)
-        steps.append({'parent': [], 'candidates': {e: {
-            'gain_mse': round(pooled, 4), 't': round(t, 2),
-            'accepted': bool(pooled >= G_MIN and t >= T_MIN)}}})
-        if pooled >= G_MIN and t >= T_MIN:
+        ok, _, entry = _judged(f.test, base.test)
+        steps.append({'parent': [], 'candidates': {e: entry}})
+        if ok:
             chosen.append(e)
             current = engine.fit(ds, tuple(chosen), start_eta=f.eta, start_theta=f.theta,
                                  new=())
@@ -527,33 +532,7 @@ def _forward(ds, base, sensors, physics, tick):
 
     singles = _parallel({e: (e, single(e)) for e in physics}, tick)
     if chosen and singles and current.delay > 0:
-        # A force lagging the motion is also what a compliance or a pre-yield loop looks like
-        # to the baseline. Keep the delay only if it still pays on top of the best physical
-        # single (fitted without it); else it stood in for physics: screen again without it.
-        # (A force that leads the motion has no physical explanation and stays a sensor
-        # finding.)
-        # The loop effects (series spring, pre-yield loop) get their own search without the
-        # delay: started from the delay's fit they settle elsewhere (a soft spring, k1 =
-        # 2.3e5 N/m, was found as a 13 ms delay and a loop).
-        b = min(singles, key=lambda e: singles[e].test.sum())
-        with_d = singles[b]
-        jobs = {b: (b + ' without channel_delay', lambda: engine.fit(
-            ds, (b,), start_eta={**with_d.eta, 'delay': 0.0}, start_theta=with_d.theta,
-            new=()))}
-        for e in LOOPS:
-            if e in physics and e != b:
-                jobs[e] = (e + ' without channel_delay', lambda e=e: engine.fit(
-                    ds, (e,), start_eta=base.eta, start_theta=base.theta, new=(e,),
-                    fixed=SCREEN_FIXED))
-        alts = _parallel(jobs, tick)
-        alone = min(alts.values(), key=lambda f: f.test.sum())
-        pooled, t, _ = fold_stats(with_d.test, alone.test)
-        steps.append({'parent': [b], 'stage': 'channel_delay on top of the best physical '
-                      'single, against the best single without it',
-                      'candidates': {'channel_delay': {
-                          'gain_mse': round(pooled, 4), 't': round(t, 2),
-                          'accepted': bool(pooled >= G_MIN and t >= T_MIN)}}})
-        if not (pooled >= G_MIN and t >= T_MIN):
+        if not _lagging_force_pays(ds, base, singles, physics, steps, tick):
             chosen = [c for c in chosen if c not in sensors]
             current = base
             singles = _parallel({e: (e, single(e)) for e in physics}, tick)
@@ -591,6 +570,34 @@ def _forward(ds, base, sensors, physics, tick):
     return chosen, fits, singles, steps, stage_amb, parent0
 
 
+def _lagging_force_pays(ds, base, singles, physics, steps, tick):
+    """Return True if a force lagging the motion still pays on top of the physics.
+
+    A lagging force is also what a compliance or a pre-yield loop looks like to the baseline.
+    The best physical single fitted with the delay (``singles``) is judged against the best
+    of that single without it and the loop effects (series spring, pre-yield loop) searched
+    afresh without it: started from the delay's fit they settle elsewhere (a soft spring,
+    k1 = 2.3e5 N/m, was found as a 13 ms delay and a loop). A force that leads the motion has
+    no physical explanation and is not judged here.
+    """
+    b = min(singles, key=lambda e: singles[e].test.sum())
+    with_d = singles[b]
+    jobs = {b: (b + ' without channel_delay', lambda: engine.fit(
+        ds, (b,), start_eta={**with_d.eta, 'delay': 0.0}, start_theta=with_d.theta,
+        new=()))}
+    for e in LOOPS:
+        if e in physics and e != b:
+            jobs[e] = (e + ' without channel_delay', lambda e=e: engine.fit(
+                ds, (e,), start_eta=base.eta, start_theta=base.theta, new=(e,),
+                fixed=SCREEN_FIXED))
+    alone = min(_parallel(jobs, tick).values(), key=lambda f: f.test.sum())
+    ok, _, entry = _judged(with_d.test, alone.test)
+    steps.append({'parent': [b], 'stage': 'channel_delay on top of the best physical '
+                  'single, against the best single without it',
+                  'candidates': {'channel_delay': entry}})
+    return ok
+
+
 def _leading_force(ds, chosen, final, fits, drop_loss, steps, tick):
     """Judge a force that *leads* the motion on top of the selected physics.
 
@@ -613,12 +620,11 @@ def _leading_force(ds, chosen, final, fits, drop_loss, steps, tick):
     with_d = engine.fit(ds, ('channel_delay',) + phys, start_eta=no_d.eta,
                         start_theta=no_d.theta, new=('channel_delay',))
     tick('leading force channel')
-    pooled, t, _ = fold_stats(with_d.test, no_d.test)
-    ok = with_d.eta['delay'] < 0 and pooled >= G_MIN and t >= T_MIN
+    ok, pooled, entry = _judged(with_d.test, no_d.test)
+    ok = ok and with_d.eta['delay'] < 0
+    entry.update(accepted=ok, delay_ms=round(1e3 * with_d.eta['delay'], 3))
     steps.append({'parent': list(phys), 'stage': 'force leading the motion (negative '
-                  'channel delay) on top of the physics', 'candidates': {'channel_delay': {
-                      'gain_mse': round(pooled, 4), 't': round(t, 2),
-                      'delay_ms': round(1e3 * with_d.eta['delay'], 3), 'accepted': ok}}})
+                  'channel delay) on top of the physics', 'candidates': {'channel_delay': entry}})
     if ok and with_d.test.sum() < final.test.sum():
         drop_loss['channel_delay'] = pooled
         chosen = ['channel_delay'] + list(phys)

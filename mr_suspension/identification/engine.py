@@ -186,8 +186,6 @@ class Dataset:
             return self.i_max * np.array([0.15, 0.25, 0.4, 0.6, 1.0, 1.6, 2.5, 4.0, 8.0])
         if name == 'x_h':
             return self.x_ref * np.logspace(-3, -0.3, 10)
-        if name == 'hyst_weight':
-            return np.array([0.1, 0.2, 0.35, 0.5, 0.7, 1.0])
         if name == 'hyst_n':
             return np.array([1.0, 1.5, 2.0, 3.0])
         if name == 'hyst_r':
@@ -299,6 +297,18 @@ def _solve(g, h):
     return np.linalg.solve(gs, (h / d)[..., None])[..., 0] / d
 
 
+def _ends_map(p, i_max):
+    """Return ``S`` with ``theta = S theta'`` for end-point parameters ``theta'``.
+
+    ``theta'`` = (f0, c(0), c(i_max), fy(0), fy(i_max), gas...): the passive constraints are
+    bounds on its end-point values.
+    """
+    s_mat = np.eye(p)
+    s_mat[2, 1], s_mat[2, 2] = -1.0 / i_max, 1.0 / i_max
+    s_mat[4, 3], s_mat[4, 4] = -1.0 / i_max, 1.0 / i_max
+    return s_mat
+
+
 def _passive(gs, hs, th, i_max):
     """Keep damping and yield force non-negative over the data's current range.
 
@@ -317,10 +327,7 @@ def _passive(gs, hs, th, i_max):
     if not bad.size:
         return th
     p = th.shape[1]
-    # theta = S theta', theta' = (f0, c(0), c(i_max), fy(0), fy(i_max), gas...)
-    s_mat = np.eye(p)
-    s_mat[2, 1], s_mat[2, 2] = -1.0 / i_max, 1.0 / i_max
-    s_mat[4, 3], s_mat[4, 4] = -1.0 / i_max, 1.0 / i_max
+    s_mat = _ends_map(p, i_max)
     th = th.copy()
     for k in bad:
         g = s_mat.T @ gs[k] @ s_mat
@@ -460,19 +467,17 @@ def output_error_theta(ds, effects, eta, theta0, n_max=OE_SAMPLES, max_nfev=OE_N
     theta, then least squares) is a fixed-point iteration that crawls, or settles in another
     basin, from a poor start: on a soft series spring (k1 = 1.1e5 N/m, 150x the noise) it
     stayed at 60x the error of the truth's parameters after 10 steps, while a bounded
-    trust-region fit of the simulation error reaches the truth's basin in about 25
-    evaluations. Passive bounds on ``c(0), c(i_max), fy(0), fy(i_max)`` (as ``_passive``);
-    the inner-fold samples of a window of at most ``n_max`` samples (the result only starts
+    trust-region fit of the simulation error reaches the truth's basin (about 25 evaluations
+    from the baseline; ``OE_NFEV`` with the continuation along the stiffness grid). Passive
+    bounds on ``c(0), c(i_max), fy(0), fy(i_max)`` (``_ends_map``, as ``_passive``); the
+    inner-fold samples of a window of at most ``n_max`` samples (the result only starts
     the separable iteration, which then uses all the data). Returns theta (``theta0`` if the
     fit fails).
     """
     p = len(theta0)
     win = _window(ds, n_max)
     dyn = current_dynamics(effects, eta)
-    i_max = ds.i_max
-    s_mat = np.eye(p)
-    s_mat[2, 1], s_mat[2, 2] = -1.0 / i_max, 1.0 / i_max
-    s_mat[4, 3], s_mat[4, 4] = -1.0 / i_max, 1.0 / i_max
+    s_mat = _ends_map(p, ds.i_max)
     inv = np.linalg.inv(s_mat)
     i_f = [field_current(r.i_in[:n], r.dt, dyn['dead_time'], dyn['tau_rise'], dyn['tau_fall'])
            for r, n, _ in win]
@@ -691,7 +696,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
         # lag): one after the other, each searched with the other at 0 or at a common value,
         # they settle far from a strongly asymmetric truth (6 / 115 ms found as 18 / 55 ms).
         e0 = dict(cur_eta())
-        if 'tau_lag' in e0 and e0.get('tau_lag', 0.0) > 0 and e0.get('tau_rise', 0.0) == 0:
+        if e0.get('tau_lag', 0.0) > 0 and e0.get('tau_rise', 0.0) == 0:
             e0['tau_rise'] = e0['tau_fall'] = e0['tau_lag']
         for tr in ASYM_GRID:
             for tf in ASYM_GRID:
@@ -768,9 +773,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                     e[n] = float(math.exp(val))
             return ev(e).sse
 
-        # Bounded-above parameters step inwards (a weight of 1 can only fall).
-        step = np.array([0.3 if n == 'delay' else -0.15 if n == 'hyst_weight' else 0.15
-                         for n in cont])
+        step = np.array([0.3 if n == 'delay' else 0.15 for n in cont])
         simplex = np.vstack([z0] + [z0 + step[j] * np.eye(len(z0))[j]
                                     for j in range(len(z0))])
         optimize.minimize(obj, z0, method='Nelder-Mead',
@@ -778,7 +781,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                                    'xatol': 1e-3, 'fatol': 0.0})
         update_theta()
 
-    shape = [n for n in ('x_h', 'hyst_n', 'hyst_r', 'hyst_weight') if n in names]
+    shape = [n for n in EFFECT_PARAMS['hysteresis'] if n in names]
     if ('hysteresis' in new and len(shape) >= 2 and np.isfinite(state['best'].sse)
             and state['best'].eta['x_h'] > 0):
         # The loop's length, exponent, unloading shape and weight lie along curved valleys
