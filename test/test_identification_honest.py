@@ -86,7 +86,29 @@ def test_channel_delay_alone_is_a_sensor_finding():
     assert 'channel_delay' in res.causes and res.locations['channel_delay'] == 'sensor'
     assert res.physical_causes == ()
     assert res.delay == pytest.approx(0.0015, abs=0.0003)
+    assert 'channel_filter' not in res.causes  # a pure shift is no low-pass
     assert res.verdict in ('none', 'partly_explained')
+
+
+def test_anti_alias_filter_alone_is_a_sensor_finding_not_a_current_lag():
+    """Effect-free damper, ideal driver; the force through a causal 150 Hz Butterworth.
+
+    Before the full-rate filter stage the roll-off at every current edge was named
+    ``current_lag`` (tau 1.6 ms) on top of a 1.4 ms ``channel_delay``.
+    """
+    from scipy import signal
+    case = cases.make_case(7, (), sensor_faults=(), duration=10.0, shape='bingham_tanh',
+                           sensor_clean=True, measured_current=False, driver_tau=0.0)
+    cols = dict(case.columns)
+    b, a = signal.butter(2, 150.0, fs=1000.0)
+    f = cols['force']
+    cols['force'] = signal.lfilter(b, a, f - f[0]) + f[0]
+    res = diagnose.run([_record(cols)])
+    assert 'channel_filter' in res.causes and res.locations['channel_filter'] == 'sensor'
+    assert res.channel_filter == pytest.approx(150.0, rel=0.15)
+    assert res.physical_causes == ()
+    rep, _ = report.build(res, [_record(cols)])
+    assert rep['extended']['force_channel_cutoff_hz'] == pytest.approx(res.channel_filter)
 
 
 def test_driver_dead_time_is_a_named_driver_cause():

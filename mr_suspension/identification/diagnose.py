@@ -35,6 +35,7 @@ MAX_SECONDS = 300.0  # longer data are judged on windows spread over it (data.li
 PARTLY_FACTOR = 2.0  # extended held-out NRMSE above this many noise floors: partly explained
 UPGRADE = 'current_lag->current_lag_asymmetric'
 FINE = ('current_delay', 'current_lag')  # current timing below the search rate's step
+FULL_RATE_SENSORS = ('channel_filter',)  # sensor effects judged at the full rate only
 T_FINE = 3.0  # fold t the extra full-rate test needs (after the selection: a stricter bar)
 JOBS = max(1, min(4, os.cpu_count() or 1))  # threads for independent fits (kernels drop the GIL)
 NESTED = {('current_lag', 'current_lag_asymmetric')}
@@ -259,9 +260,9 @@ def exact_heldout(ds, fit):
     for k in range(ds.n_folds):
         params = engine.damper_params(fit.effects, fit.eta_k[k], _pad(fit.theta_k[k]))
         dyn = engine.current_dynamics(fit.effects, fit.eta_k[k])
-        delay = fit.eta_k[k]['delay'] if 'channel_delay' in fit.effects else 0.0
+        delay, f_ch = engine.channel_of(fit.effects, fit.eta_k[k])
         for r, sl in zip(ds.records, ds.slices):
-            f = engine.simulate(r, params, dyn, delay)
+            f = engine.simulate(r, params, dyn, delay, f_ch)
             m = ds.fold[sl] == k
             sse[k] += float(np.sum((r.force[m] - f[m]) ** 2))
             cnt[k] += int(m.sum())
@@ -457,6 +458,11 @@ class DiagnosisResult:
     def delay(self):
         """Fitted force-channel delay [s] (0 when not named)."""
         return self.final.delay if 'channel_delay' in self.causes else 0.0
+
+    @property
+    def channel_filter(self):
+        """Fitted force-channel low-pass cut-off [Hz] (0 when not named)."""
+        return self.final.channel['f_ch'] if 'channel_filter' in self.causes else 0.0
 
 
 def _fits_without(ds, fits, singles, final, e, chosen):
@@ -718,62 +724,95 @@ def _full_rate(ds, base, final, chosen, drop_loss, ds_search, final_search, tick
 
 
 def _fine_timing(ds, final, chosen, allowed, tick):
-    """Judge timing effects finer than the search rate's step at the full rate.
+    """Judge what lies above the search rate's band, at the full rate, sensor first.
 
-    A dead time or lag of a sample or two (a DAC's hold, a fast driver) is a fraction of a
-    decimated sample: the selection cannot see it, but it leaves an error at every current
-    edge. Each ``FINE`` effect not chosen yet is fitted on top of
-    the final model at the full rate and accepted by the selection's rule with a fold t of
+    A force-channel low-pass (anti-alias filter) rolls the force off above the search rate's
+    band: decimated it is a delay, and at the full rate its roll-off at every current edge
+    looks like a current lag or a stiff series spring (effect-free records with a 150 Hz
+    filter were named ``current_lag``). So ``channel_filter`` is judged first; when named,
+    the physical causes are checked again on top of it. Then a dead time or lag of a sample
+    or two (a DAC's hold, a fast driver), a fraction of a decimated sample that the selection
+    cannot see but that leaves an error at every current edge (``FINE``). Each stage fits its
+    candidates on top of the final model and accepts by the selection's rule with a fold t of
     at least ``T_FINE`` (a second look at the data after the selection).
-    Returns ``(final, chosen, step record or None)``.
+    Returns ``(final, chosen, step records)``.
     """
+    steps = []
+    filt = [e for e in FULL_RATE_SENSORS if e in allowed and e not in chosen]
+    if filt:
+        final, chosen, step = _fine_stage(ds, final, chosen, filt, tick,
+                                          'force channel low-pass (full rate)')
+        steps.append(step)
     if len([c for c in chosen if c not in engine.SENSOR_EFFECTS]) >= MAX_CAUSES:
-        return final, chosen, None
+        return final, chosen, steps
     cands = [e for e in FINE if e in allowed and e not in chosen and _compatible(chosen, e)]
     if not cands:
-        return final, chosen, None
+        return final, chosen, steps
+    final, chosen, step = _fine_stage(ds, final, chosen, cands, tick, 'fine timing (full rate)')
+    steps.append(step)
+    if 'added' not in step and 'current_lag' in chosen and 'current_delay' in allowed:
+        # A lag chosen at the search rate may be a dead time of a sample or two: the same
+        # number of parameters, so the lower held-out error decides.
+        dt = ds.dt_min
+        swap = tuple('current_delay' if c == 'current_lag' else c for c in chosen)
+        eta = {**final.eta, 'dead_time': round(final.eta['tau_lag'] / dt) * dt}
+        alt = engine.fit(ds, swap, start_eta=eta, start_theta=final.theta, new=(), sweeps=1)
+        tick('fine timing: lag -> dead time')
+        step['swap_lag_for_dead_time'] = round(fold_stats(alt.test, final.test)[0], 4)
+        if alt.test.sum() < final.test.sum():
+            return alt, list(swap), steps
+    return final, chosen, steps
 
+
+def _fine_stage(ds, final, chosen, cands, tick, label):
+    """Fit ``cands`` on top of ``final`` (its parameters held), accept the best at ``T_FINE``.
+
+    Returns ``(final, chosen, step record)``; the record carries ``added`` and its pooled
+    ``loss`` when a candidate was named.
+    """
     held = tuple(n for c in chosen for n in engine.EFFECT_PARAMS[c])
     dt = ds.dt_min
-    # Local grids only (the search rate's grids already covered the larger values): dead
-    # time 0-4 samples, lag 0.5-8 samples. (A force-channel delay is fractional at any rate
-    # and judged before any physics.)
+    # Local grids for the current timing (the search rate's grids already covered the larger
+    # values): dead time 0-4 samples, lag 0.5-8 samples; the filter's whole cut-off grid.
     start = {'current_delay': {'dead_time': 2 * dt}, 'current_lag': {'tau_lag': 2 * dt}}
 
     def child(e):
-        return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta={**final.eta, **start[e]},
+        if e in FULL_RATE_SENSORS:
+            # The filter's roll-off is what the delay and the physics were bent to mimic:
+            # everything is refitted with it (the delay jointly with the cut-off).
+            return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta=final.eta,
+                                      start_theta=final.theta, new=(e,), sweeps=1,
+                                      local=(0.5, 1.0, 2.0))
+        return lambda: engine.fit(ds, tuple(chosen) + (e,),
+                                  start_eta={**final.eta, **start.get(e, {})},
                                   start_theta=final.theta, new=(), sweeps=1, fixed=held,
                                   local=(0.25, 0.5, 1.0, 2.0, 4.0))
 
-    pool = _parallel({e: ('fine timing: +' + e, child(e)) for e in cands}, tick)
+    pool = _parallel({e: (label + ': +' + e, child(e)) for e in cands}, tick)
     best, _, stats = _choose(pool, final.test, final.prediction)
     if best is not None and stats[best]['t'] < T_FINE:
         stats[best]['accepted'] = False
         best = None
     step = _step_record(chosen, stats)
-    step['stage'] = 'fine timing (full rate)'
+    step['stage'] = label
     if best is None:
-        if 'current_lag' in chosen and 'current_delay' in allowed:
-            # A lag chosen at the search rate may be a dead time of a sample or two: the same
-            # number of parameters, so the lower held-out error decides.
-            swap = tuple('current_delay' if c == 'current_lag' else c for c in chosen)
-            eta = {**final.eta, 'dead_time': round(final.eta['tau_lag'] / dt) * dt}
-            alt = engine.fit(ds, swap, start_eta=eta, start_theta=final.theta, new=(),
-                             sweeps=1)
-            tick('fine timing: lag -> dead time')
-            step['swap_lag_for_dead_time'] = round(fold_stats(alt.test, final.test)[0], 4)
-            if alt.test.sum() < final.test.sum():
-                return alt, list(swap), step
         return final, chosen, step
     added = list(chosen) + [best]
     f = engine.fit(ds, tuple(added), start_eta=pool[best].eta, start_theta=pool[best].theta,
                    new=(), sweeps=1, local=(0.8, 1.0, 1.25))
-    tick('fine timing: refit')
+    tick(label + ': refit')
     f = f if f.sse < pool[best].sse else pool[best]
-    # With the new timing cause, an earlier one may have become redundant.
+    step['added'] = best
+    step['loss'] = round(fold_stats(f.test, final.test)[0], 4)
+    # With the new cause, an earlier one may have become redundant.
     added, f = backward(ds, added, {tuple(added): f, tuple(chosen): final},
                         drop_loss={}, skip=(best,), tick=tick)
     return f, added, step
+
+
+def _fine_losses(steps):
+    """Pooled held-out loss of each cause named by a full-rate stage (for the ordering)."""
+    return {s['added']: s['loss'] for s in steps if 'added' in s}
 
 
 def outer_mse(ds, fit):
@@ -784,7 +823,7 @@ def outer_mse(ds, fit):
     for r, sl in zip(ds.records, ds.slices):
         m = ds.outer[sl]
         if m.any():
-            f = engine.simulate(r, params, dyn, fit.delay)
+            f = engine.simulate(r, params, dyn, **fit.channel)
             err.append((r.force[m] - f[m]) ** 2)
     return float(np.mean(np.concatenate(err))) if err else float('nan')
 
@@ -798,7 +837,7 @@ def residual_map(ds, fit, bins=8):
     params = fit.params()
     dyn = fit.dynamics()
     for r, sl in zip(ds.records, ds.slices):
-        f = engine.simulate(r, params, dyn, fit.delay)
+        f = engine.simulate(r, params, dyn, **fit.channel)
         m = ds.outer[sl]
         res.append((r.force - f)[m])
         v.append(np.abs(r.velocity[m]))
@@ -860,7 +899,9 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     if long_note:
         notes['long_records'] = long_note
     physics = [e for e in effects if e in engine.EFFECTS and e not in untestable]
-    sensors = [e for e in effects if e in engine.SENSOR_EFFECTS]
+    # A force-channel low-pass rolls off above the search rate's band: judged at the full rate.
+    sensors = [e for e in effects if e in engine.SENSOR_EFFECTS and e not in FULL_RATE_SENSORS]
+    full_sensors = [e for e in effects if e in FULL_RATE_SENSORS]
     tick = progress or (lambda *a, **k: None)
     # The noise floor and the driver depend on the data alone: worked out alongside.
     floor_job = _background(lambda: _floor(full))
@@ -887,12 +928,16 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
                                          final_search, tick)
         if ds.dt_min < 0.75 * ds_search.dt_min:
             start = final if chosen else base
-            final, chosen, fine = _fine_timing(ds, start, chosen, physics + sensors, tick)
-            if fine is not None:
-                steps = tuple(steps) + (fine,)
-            if fine is not None and chosen and chosen[-1] in fine['candidates']:
-                e = chosen[-1]
-                drop_loss[e] = fold_stats(final.test, start.test)[0]
+            # A low-pass always makes the force lag: judged only when a lagging force channel
+            # was kept (on clean records with noisy motion channels a low-pass of the
+            # regressors pays as smoothing of the input noise, not as a sensor).
+            lagging = 'channel_delay' in chosen and final.delay > 0
+            final, chosen, fine = _fine_timing(
+                ds, start, chosen, physics + sensors + (full_sensors if lagging else []), tick)
+            steps = tuple(steps) + tuple(fine)
+            for e, loss in _fine_losses(fine).items():
+                if e in chosen:
+                    drop_loss[e] = loss
     # Per-cause "alone" figures at the full rate: the effect's parameters from the final
     # fit, linear parameters refitted per fold (one regressor evaluation each).
     cause_test = {}
@@ -983,7 +1028,7 @@ class Diagnosis:
         """Force [N] of the extended (or ``'baseline'``) model on a record, as measured."""
         res = self._check()
         fit = res.final if model == 'extended' else res.baseline
-        return engine.simulate(record, fit.params(), fit.dynamics(), fit.delay)
+        return engine.simulate(record, fit.params(), fit.dynamics(), **fit.channel)
 
     def score(self, record, model='extended'):
         """NRMSE (RMS error / std of the measured force) on a record never used in the fit."""

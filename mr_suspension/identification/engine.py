@@ -18,21 +18,23 @@ visited grid points, so no held-out sample influences its own prediction. States
 through the whole record (held-out blocks included) from the input signals only.
 """
 
+import functools
 import math
 
 from numba import njit
 import numpy as np
-from scipy import optimize
+from scipy import optimize, signal
 
 from mr_suspension.core.extended import ExtendedDamperParams, simulate_extended
 
 EFFECTS = ('current_delay', 'current_lag', 'current_lag_asymmetric', 'current_saturation',
            'hysteresis', 'series_stiffness', 'gas_spring', 'thermal_fade', 'direction_asymmetry',
            'yield_shape')
-SENSOR_EFFECTS = ('channel_delay',)
+SENSOR_EFFECTS = ('channel_delay', 'channel_filter')
 ALL_EFFECTS = SENSOR_EFFECTS + EFFECTS
 EFFECT_PARAMS = {
     'channel_delay': ('delay',),
+    'channel_filter': ('f_ch',),
     'current_delay': ('dead_time',),
     'current_lag': ('tau_lag',),
     'current_lag_asymmetric': ('tau_rise', 'tau_fall'),
@@ -200,6 +202,9 @@ class Dataset:
             return np.linspace(-0.45, 0.45, 19)
         if name == 'yield_n':
             return np.array([0.7, 0.9, 1.2, 1.6, 2.2, 3.0, 4.5, 7.0])
+        if name == 'f_ch':
+            # Anti-alias cut-offs (2nd-order Butterworth) from 4 % to 42 % of the rate.
+            return np.array([0.04, 0.06, 0.09, 0.13, 0.18, 0.25, 0.33, 0.42]) / self.dt_min
         if name == 'delay':
             return np.array([-20, -12, -8, -5, -3, -2, -1.2, -0.6, 0, 0.6, 1.2, 2, 3, 5, 8, 12,
                              20]) * ms
@@ -211,7 +216,7 @@ def neutral_eta():
     return {'v_y': 0.01, 'dead_time': 0.0, 'tau_lag': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0,
             'i_sat': 0.0, 'x_h': 0.0, 'k_series': 0.0, 'kappa': 0.0, 'tau_thermal': 600.0,
             'rho': 0.0, 'delay': 0.0, 'yield_n': 0.0, 'hyst_weight': 1.0, 'hyst_n': 1.0,
-            'hyst_r': 0.0}
+            'hyst_r': 0.0, 'f_ch': 0.0}
 
 
 def current_dynamics(effects, eta):
@@ -248,17 +253,46 @@ def damper_params(effects, eta, theta):
     return ExtendedDamperParams(**{k: float(v) for k, v in d.items()})
 
 
-def simulate(record, params, dyn, delay=0.0):
+@functools.lru_cache(maxsize=64)
+def _butter(f_ch, dt):
+    return signal.butter(2, f_ch, fs=1.0 / dt, output='sos')
+
+
+def channel_of(effects, eta):
+    """Return the force channel ``(delay [s], f_ch [Hz])`` of a model (0 = absent)."""
+    return (float(eta['delay']) if 'channel_delay' in effects else 0.0,
+            float(eta.get('f_ch', 0.0)) if 'channel_filter' in effects else 0.0)
+
+
+def apply_channel(x, dt, delay=0.0, f_ch=0.0):
+    """Return the columns of ``x`` as the force channel reports them (sensor effects).
+
+    ``f_ch`` > 0: a causal 2nd-order Butterworth low-pass at ``f_ch`` [Hz] (an anti-alias
+    filter; at rest at the first sample), off at or above 0.45 of the rate; ``delay`` [s]: a
+    signed fractional shift to ``t - delay`` (``shift_columns``). Both are linear, so applying
+    them to the regressors equals applying them to the force.
+    """
+    if 0.0 < f_ch < 0.45 / dt:
+        sos = _butter(round(float(f_ch), 9), float(dt))
+        zi = signal.sosfilt_zi(sos)[:, :, None] * x[0][None, None, :]
+        x = signal.sosfilt(sos, x, axis=0, zi=zi)[0]
+    if delay:
+        x = shift_columns(np.ascontiguousarray(x), delay / dt)
+    return x
+
+
+def simulate(record, params, dyn, delay=0.0, f_ch=0.0):
     """Predicted force of a fitted model on a record: current dynamics then ``extended_force``.
 
-    ``delay`` [s] is a force-channel delay (sensor): the prediction is shifted to ``t - delay``.
+    ``delay`` [s] and ``f_ch`` [Hz] are the force channel's delay and low-pass (sensor,
+    ``apply_channel``): the prediction is the force as that channel reports it.
     """
     i_f = field_current(record.i_in, record.dt, dyn['dead_time'], dyn['tau_rise'],
                         dyn['tau_fall'])
     f = simulate_extended(params.to_array(), record.displacement, record.velocity, i_f,
                           record.dt)[0]
-    if delay:
-        f = shift_columns(f[:, None], delay / record.dt)[:, 0]
+    if delay or f_ch:
+        f = apply_channel(f[:, None], record.dt, delay, f_ch)[:, 0]
     return f
 
 
@@ -283,8 +317,9 @@ def design(ds, effects, eta, theta_prev):
         if gas:
             c += [r.displacement, r.displacement ** 2]
         x = np.column_stack(c)
-        if 'channel_delay' in effects and eta['delay']:
-            x = shift_columns(x, eta['delay'] / r.dt)
+        delay, f_ch = channel_of(effects, eta)
+        if delay or f_ch:
+            x = apply_channel(x, r.dt, delay, f_ch)
         cols.append(x)
     return np.vstack(cols)
 
@@ -436,7 +471,13 @@ class FitResult:
     @property
     def delay(self):
         """Fitted force-channel delay [s] (0 unless ``channel_delay`` is in the model)."""
-        return float(self.eta['delay']) if 'channel_delay' in self.effects else 0.0
+        return channel_of(self.effects, self.eta)[0]
+
+    @property
+    def channel(self):
+        """Fitted force channel ``{'delay': s, 'f_ch': Hz}`` (0 = absent), for ``simulate``."""
+        delay, f_ch = channel_of(self.effects, self.eta)
+        return {'delay': delay, 'f_ch': f_ch}
 
     def effect_params(self, effect):
         """Parameters that define one effect in this fit (SI)."""
@@ -493,8 +534,9 @@ def output_error_theta(ds, effects, eta, theta0, n_max=OE_SAMPLES, max_nfev=OE_N
         out = []
         for (r, n, m), i in zip(win, i_f):
             f = simulate_extended(pa, r.displacement[:n], r.velocity[:n], i, r.dt)[0]
-            if 'channel_delay' in effects and eta['delay']:
-                f = shift_columns(f[:, None], eta['delay'] / r.dt)[:, 0]
+            delay, f_ch = channel_of(effects, eta)
+            if delay or f_ch:
+                f = apply_channel(f[:, None], r.dt, delay, f_ch)[:, 0]
             out.append((f - r.force[:n])[m] / scale)
         out = np.concatenate(out)
         return out if np.all(np.isfinite(out)) else np.full(n_used, 10.0)
@@ -701,6 +743,15 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
         for tr in ASYM_GRID:
             for tf in ASYM_GRID:
                 ev({**e0, 'tau_rise': float(tr), 'tau_fall': float(tf)})
+    if 'f_ch' in names and 'channel_filter' in new and 'delay' in names:
+        # A low-pass delays the force by its group delay, sqrt(2) / (2 pi f_ch) at low
+        # frequency (2nd-order Butterworth), which a delay found without it already holds:
+        # each cut-off is tried with the delay reduced by that much (and half a sample about).
+        e0 = dict(cur_eta())
+        for fc in ds.grid('f_ch'):
+            gd = math.sqrt(2.0) / (2.0 * math.pi * fc)
+            for off in (-0.5, 0.0, 0.5):
+                ev({**e0, 'f_ch': float(fc), 'delay': e0['delay'] - gd + off * ds.dt_min})
     for sweep in range(sweeps):
         for name in names + ['v_y']:
             if sweep == 0 and (name in _new_names(new) or start_eta is None

@@ -16,6 +16,8 @@ BASELINE_MODEL = ('F = F0 + (c0 + c1 i) v + (fy0 + fy1 i) tanh(v / v_y), i = com
                   'the static driver map (seed 003 eq. 5.2)')
 EFFECT_TEXT = {
     'channel_delay': 'force channel shifted in time against the motion channels (filter, skew)',
+    'channel_filter': 'force channel low-passed (2nd-order Butterworth anti-alias filter, '
+                      'cut-off f_ch)',
     'driver_delay': 'driver dead time (command -> measured coil current) differs from nominal',
     'driver_lag': 'driver rise/fall time constants differ from nominal',
     'current_delay': 'dead time between the current command and the field',
@@ -111,7 +113,8 @@ def build(res, records, validate=(), elapsed=None):
                      'heldout_nrmse': ext_n,
                      'parameters': final.params().to_dict(),
                      'current_dynamics': final.dynamics(),
-                     'force_channel_delay': res.delay},
+                     'force_channel_delay': res.delay,
+                     'force_channel_cutoff_hz': res.channel_filter},
         'gain': 1.0 - ext_n / base_n if base_n > 0 else 0.0,
         'heldout': {k: v for k, v in ho.items() if not k.endswith('_mse')},
         'inner_cv': {'baseline_nrmse': inner_base,
@@ -130,8 +133,11 @@ def build(res, records, validate=(), elapsed=None):
                       f't-statistic >= {diagnose.T_MIN}',
             'sensor_first': 'a force-channel delay (either sign, fractional samples) is '
                             'judged on the baseline before any physics and stays a free '
-                            'parameter of every later model; data checks (clipping, '
-                            'dropouts, stamps, velocity) run at load time',
+                            'parameter of every later model; a force-channel low-pass '
+                            '(anti-alias filter) is judged at the full rate before the fine '
+                            'current timing, and the physics is checked again on top of it; '
+                            'data checks (clipping, dropouts, stamps, velocity) run at load '
+                            'time',
             'ambiguous': f'not separable by that rule and contributions correlated >= '
                          f'{diagnose.CORR_AMBIG}, and the swap of the two in the final model '
                          'is not rejected',
@@ -167,7 +173,8 @@ def build(res, records, validate=(), elapsed=None):
     ext_dyn = final.dynamics()
     kinds = sorted({r.input_kind for r in records})
     extra = {'heldout_nrmse': ext_n, 'baseline_heldout_nrmse': base_n,
-             'sensor': {'force_channel_delay': res.delay}}
+             'sensor': {'force_channel_delay': res.delay,
+                        'force_channel_cutoff_hz': res.channel_filter}}
     if res.driver:
         extra['driver'] = {k: res.driver[k] for k in ('dead_time', 'tau_rise', 'tau_fall')}
     model = model_io.model_dict(ext_params, ext_dyn, damper_causes, kinds[0],
@@ -202,7 +209,7 @@ def _predictions(res, records, delay=True):
     for r in records:
         fb = engine.simulate(r, base.params(), bdyn)
         fe = engine.simulate(r, final.params(), final.dynamics(),
-                             final.delay if delay else 0.0)
+                             **(final.channel if delay else {}))
         out.append((r, fb, fe))
     return out
 
@@ -365,7 +372,12 @@ def markdown(report, figures):
     if report['sensor_findings']:
         lines += ['## Sensor findings (corrected or excluded before the physics)', '']
         for f in report['sensor_findings']:
-            if 'effect' in f:
+            if f.get('effect') == 'channel_filter':
+                lines.append(f'- `channel_filter`: force channel low-passed at '
+                             f'{f["parameters"]["f_ch"]:.0f} Hz (2nd-order Butterworth, an '
+                             'anti-alias filter; estimated with every model at the full rate, '
+                             'removed from the physical model)')
+            elif 'effect' in f:
                 lines.append(f'- `{f["effect"]}`: force channel delayed by '
                              f'{1e3 * f["parameters"]["delay"]:.2f} ms against the motion '
                              '(estimated with every model; removed from the physical model)')
