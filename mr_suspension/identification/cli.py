@@ -1,4 +1,4 @@
-"""Command line: ``diagnose``, ``predict`` and ``doe`` subcommands (``register(subparsers)``).
+"""Command line: ``diagnose``, ``diagnose-fleet``, ``predict``, ``doe`` (``register(subparsers)``).
 
 Standalone: ``python -m mr_suspension.identification.cli diagnose DATA... --out DIR``.
 """
@@ -48,8 +48,56 @@ def _load_options(args):
                               use_measured_current=not args.ignore_measured_current)
 
 
+def _add_diagnose_options(p, quiet_help):
+    p.add_argument('--effects', default=','.join(engine.ALL_EFFECTS),
+                   help='comma-separated subset of the catalogue to test')
+    p.add_argument('--driver', default='wonder_box',
+                   help='nominal driver (config/drivers/NAME.yaml or a YAML path) that a '
+                        'measured coil current is compared with (default wonder_box)')
+    p.add_argument('--folds', type=int, default=5, help='cross-validation folds (default 5)')
+    p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
+    p.add_argument('--quiet', action='store_true', help=quiet_help)
+
+
+def _diagnose_settings(args):
+    """Return the checked ``(LoadOptions, effects, folds, nominal driver)`` options."""
+    if not 2 <= args.folds <= 50:
+        raise ValueError(f'--folds must be 2..50, got {args.folds}')
+    opts = _load_options(args)
+    effects = tuple(e.strip() for e in args.effects.split(',') if e.strip())
+    bad = [e for e in effects if e not in engine.ALL_EFFECTS]
+    if bad:
+        raise dataio.DataError(f'unknown effect(s) {bad}; known: '
+                               f'{", ".join(engine.ALL_EFFECTS)}')
+    from mr_suspension.core.config import load_driver
+    return opts, effects, args.folds, load_driver(args.driver)
+
+
+def diagnose_to_dir(paths, out_dir, opts, effects, n_folds, nominal, validate=(),
+                    make_plots=True, progress=None, on_load=None):
+    """Load ``paths`` (one damper's records), diagnose, write the report into ``out_dir``.
+
+    What ``diagnose`` does after parsing its options (``diagnose-fleet`` runs it once per
+    record set). ``on_load(warnings)`` is called with the input warnings once the records are
+    loaded. Returns ``(report dict, DiagnosisResult, input warnings)``.
+    """
+    t0 = time.time()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        records = dataio.load_records(paths, opts)
+        validate = dataio.load_records(validate, opts) if validate else []
+    notes = [str(w.message) for w in caught]
+    if on_load is not None:
+        on_load(notes)
+    res = diagnose.Diagnosis(effects=effects, n_folds=n_folds, nominal_driver=nominal,
+                             progress=progress).fit(records)
+    rep, _ = report.write(res, records, out_dir, validate, time.time() - t0,
+                          make_plots=make_plots, input_warnings=notes)
+    return rep, res, notes
+
+
 def register(subparsers):
-    """Add the ``diagnose``, ``predict`` and ``doe`` subcommands to an argparse subparsers."""
+    """Add the ``diagnose``, ``diagnose-fleet``, ``predict``, ``doe`` subcommands to a parser."""
     p = subparsers.add_parser(
         'diagnose', help='find what the nominal damper model gets wrong, and why',
         description='Fit the baseline smooth-Bingham rig model, test every catalogue effect '
@@ -62,16 +110,30 @@ def register(subparsers):
     p.add_argument('--validate', action='append', default=[], metavar='FILE',
                    help='record never used in the fit, scored with the final models '
                         '(repeat for several)')
-    p.add_argument('--effects', default=','.join(engine.ALL_EFFECTS),
-                   help='comma-separated subset of the catalogue to test')
-    p.add_argument('--driver', default='wonder_box',
-                   help='nominal driver (config/drivers/NAME.yaml or a YAML path) that a '
-                        'measured coil current is compared with (default wonder_box)')
-    p.add_argument('--folds', type=int, default=5, help='cross-validation folds (default 5)')
-    p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
-    p.add_argument('--quiet', action='store_true', help='no progress bar or summary')
+    _add_diagnose_options(p, 'no progress bar or summary')
     _add_load_options(p)
     p.set_defaults(func=cmd_diagnose)
+    p = subparsers.add_parser(
+        'diagnose-fleet', help='diagnose many dampers: one report per record set, fleet table',
+        description='Find the record sets in the folders (each CSV/text/.mat file, each '
+                    'rosbag2 bag, and each sub-folder of record files is one damper), run '
+                    'one diagnose per set (serially or on dask.distributed), write each '
+                    'report to OUT/<name>/ exactly as diagnose does, and a fleet summary '
+                    'OUT/fleet.md and OUT/fleet.csv (a set that fails is an error row). '
+                    'See docs/parallel.md for running on a cluster. ' + LOAD_HELP)
+    p.add_argument('dirs', nargs='+', metavar='DIR',
+                   help='folders of record sets (or single records/bags)')
+    p.add_argument('--out', required=True, help='output directory')
+    g = p.add_mutually_exclusive_group()
+    g.add_argument('--workers', type=int, default=None, metavar='N',
+                   help='local dask worker processes (default: one per CPU, at most one per '
+                        'record set; serial with one CPU); 0 runs serially in this process')
+    g.add_argument('--scheduler', default=None, metavar='ADDRESS',
+                   help='run on an existing dask cluster, e.g. tcp://host:8786 (workers '
+                        'need this package version and the record paths)')
+    _add_diagnose_options(p, 'no per-set progress lines or summary')
+    _add_load_options(p)
+    p.set_defaults(func=cmd_diagnose_fleet)
     p = subparsers.add_parser(
         'predict', help='evaluate a fitted model on a record; writes time,force',
         description='Evaluate model.json (from diagnose) on new records. ' + LOAD_HELP)
@@ -102,44 +164,33 @@ def cmd_diagnose(args):
     """Run ``diagnose``."""
     from mr_suspension.cli import output_dir
     output_dir(args.out)
-    if not 2 <= args.folds <= 50:
-        raise ValueError(f'--folds must be 2..50, got {args.folds}')
-    opts = _load_options(args)
-    effects = tuple(e.strip() for e in args.effects.split(',') if e.strip())
-    bad = [e for e in effects if e not in engine.ALL_EFFECTS]
-    if bad:
-        raise dataio.DataError(f'unknown effect(s) {bad}; known: '
-                               f'{", ".join(engine.ALL_EFFECTS)}')
-    from mr_suspension.core.config import load_driver
-    nominal = load_driver(args.driver)
-    t0 = time.time()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter('always')
-        records = dataio.load_records(args.data, opts)
-        validate = dataio.load_records(args.validate, opts) if args.validate else []
-    notes = [str(w.message) for w in caught]
-    for msg in notes:
-        print(f'warning: {msg}', file=sys.stderr)
+    opts, effects, folds, nominal = _diagnose_settings(args)
     bar = None
-    if not args.quiet:
-        from tqdm import tqdm
-        bar = tqdm(desc='diagnose', unit='fit', file=sys.stderr,
-                   disable=not sys.stderr.isatty())
+
+    def loaded(notes):
+        nonlocal bar
+        for msg in notes:
+            print(f'warning: {msg}', file=sys.stderr)
+        if not args.quiet:
+            from tqdm import tqdm
+            bar = tqdm(desc='diagnose', unit='fit', file=sys.stderr,
+                       disable=not sys.stderr.isatty())
 
     def tick(label):
         if bar is not None:
             bar.set_postfix_str(label[:40])
             bar.update(1)
 
-    res = diagnose.Diagnosis(effects=effects, n_folds=args.folds, nominal_driver=nominal,
-                             progress=tick).fit(records)
-    if bar is not None:
-        bar.close()
+    try:
+        rep, res, _ = diagnose_to_dir(args.data, args.out, opts, effects, folds, nominal,
+                                      args.validate, make_plots=not args.no_plots,
+                                      progress=tick, on_load=loaded)
+    finally:
+        if bar is not None:
+            bar.close()
     if 'current' in res.notes:
         print(f'warning: {res.notes["current"]} (c1 and fy1 are not identifiable; record '
               'several current levels, see mr-suspension doe)', file=sys.stderr)
-    rep, _ = report.write(res, records, args.out, validate, time.time() - t0,
-                          make_plots=not args.no_plots, input_warnings=notes)
     if not args.quiet:
         causes = ', '.join(f'{c["effect"]} ({c["location"]})' for c in rep['causes']) or 'none'
         nf = rep['noise_floor']
@@ -157,6 +208,43 @@ def cmd_diagnose(args):
             print(f'validation NRMSE baseline {v["baseline_nrmse"]:.4f} -> extended '
                   f'{v["extended_nrmse"]:.4f} (gain {v["gain"]:.1%})')
         print(f'wrote {Path(args.out) / "report.md"}')
+    return 0
+
+
+def cmd_diagnose_fleet(args):
+    """Run ``diagnose-fleet``: one diagnosis per record set, reports and a fleet table."""
+    from mr_suspension import parallel
+    from mr_suspension.cli import output_dir
+    from mr_suspension.identification import fleet
+
+    out = output_dir(args.out)
+    opts, effects, folds, nominal = _diagnose_settings(args)
+    if args.workers is not None and args.workers < 0:
+        raise ValueError(f'--workers must be >= 0, got {args.workers}')
+    sets = fleet.find_record_sets(args.dirs, exclude=[out])
+    workers = 0
+    if not args.scheduler:
+        workers = parallel.default_workers() if args.workers is None else args.workers
+        if args.workers is None:
+            workers = min(workers, len(sets)) if workers > 1 and len(sets) > 1 else 0
+    where = (f'dask scheduler {args.scheduler}' if args.scheduler else
+             f'a local dask cluster of {workers} worker process{"es" * (workers > 1)}'
+             if workers else 'serially in this process')
+    log = None if args.quiet else (lambda line: print(line, flush=True))
+    if not args.quiet:
+        print(f'{len(sets)} record sets, running {where}', flush=True)
+    settings = fleet.Settings(load=opts, effects=effects, folds=folds, nominal=nominal,
+                              make_plots=not args.no_plots)
+    rows, wall = fleet.run_fleet(sets, out, settings, workers=workers,
+                                 scheduler=args.scheduler, log=log)
+    rate = 60.0 * len(rows) / wall if wall > 0 else float('nan')
+    failed = sum(1 for r in rows if r.get('error'))
+    fleet.write_summary(out, rows, header=[
+        f'{len(rows)} record sets from {", ".join(args.dirs)}, run {where}: {wall:.1f} s '
+        f'wall, {rate:.1f} record sets per minute; {failed} failed.'])
+    if not args.quiet:
+        print(f'{len(rows)} record sets in {wall:.1f} s ({rate:.1f} per minute), {failed} '
+              f'failed; wrote {out / "fleet.md"} and {out / "fleet.csv"}')
     return 0
 
 
