@@ -252,7 +252,19 @@ class ControllerParams:
         return lqr_gain(self.m_s, self.m_u, self.k_s, self.k_t, self.c_t, *self.lqr_weights)
 
     def to_array(self):
-        """Return the jitted law's parameter array ``p`` (layout ``P_*``)."""
+        """Return the jitted law's parameter array ``p`` (layout ``P_*``).
+
+        Computed once per (frozen) instance: the clipped-optimal gain needs a Riccati solve,
+        about 10 ms, which a batch of thousands of corners sharing a controller must not
+        repeat. A copy is returned.
+        """
+        cached = self.__dict__.get('_array')
+        if cached is None:
+            cached = self._build_array()
+            object.__setattr__(self, '_array', cached)
+        return cached.copy()
+
+    def _build_array(self):
         from mr_suspension.control.inverse import static_force
         model = self._model
         dp = model.to_array()
@@ -410,6 +422,12 @@ def _inverse(p, s, x, v, f_des, dt):
     return semi_active_current(int(p[P_DLAW]), p[P_DP:P_DP + n], s[S_DMP:S_DMP + N_DMP_STATE],
                                s[S_TMP:S_DMP], x, v, f_des, p[P_FSTAT], p[P_IMIN], p[P_IMAX],
                                dt)
+
+
+@njit(cache=True)
+def inverse_command(p, s, x, v, f_des, dt):
+    """Return the passivity-clipped inverse model's current for ``f_des`` (as the laws do)."""
+    return _inverse(p, s, x, v, f_des, dt)
 
 
 @njit(cache=True)

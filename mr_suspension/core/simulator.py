@@ -14,6 +14,7 @@ Deterministic: no randomness is drawn here (roads are generated from a seed befo
 """
 
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 import math
 
 from numba import njit, prange
@@ -37,6 +38,12 @@ BATCH_METRICS = ('body_acc_rms', 'body_acc_peak', 'body_acc_wk_rms', 'vdv',
                  'working_space_rms', 'working_space_peak', 'tyre_load_rms', 'ntf_min',
                  'damper_energy')
 DELAY_BUFFER = 256
+
+
+@lru_cache(maxsize=8)
+def _wk(dt):
+    """Wk filter sections for ``dt``, designed once (scipy's design takes about 2 ms); shared."""
+    return wk_sos(dt)
 
 
 @dataclass(frozen=True)
@@ -201,7 +208,7 @@ def simulate(config, road):
     out = np.empty((road.n_steps, len(CHANNELS)))
     acc = np.zeros(len(BATCH_METRICS))
     corner_loop(car_p, law, dp, ds, drv_p, drv_s, cid, cp, cs, road.z, road.zdot, config.dt,
-                _delay_steps(config), q, out, True, wk_sos(config.dt), acc)
+                _delay_steps(config), q, out, True, _wk(config.dt), acc)
     if not np.all(np.isfinite(out)):
         raise FloatingPointError('simulation diverged (non-finite state); check parameters')
     return SimResult(config.dt, out, config.car.static_tyre_load, config)
@@ -209,9 +216,8 @@ def simulate(config, road):
 
 @njit(parallel=True, cache=True)
 def _batch(car_ps, laws, dps, drv_ps, cids, cps, road_idx, roads_z, roads_zd, dt, delays,
-           sos, nstate, acc):
+           sos, nstate, acc, rec, out):
     nc = car_ps.shape[0]
-    dummy = np.empty((1, 1))
     for c in prange(nc):
         ds = np.zeros(nstate)
         drv_s = np.zeros(DRIVER_STATE_SIZE)
@@ -219,7 +225,8 @@ def _batch(car_ps, laws, dps, drv_ps, cids, cps, road_idx, roads_z, roads_zd, dt
         q = np.zeros(4)
         r = road_idx[c]
         corner_loop(car_ps[c], laws[c], dps[c], ds, drv_ps[c], drv_s, cids[c], cps[c], cs,
-                    roads_z[r], roads_zd[r], dt, delays[c], q, dummy, False, sos, acc[c])
+                    roads_z[r], roads_zd[r], dt, delays[c], q, out[c] if rec else out[0],
+                    rec, sos, acc[c])
 
 
 def _stack(arrays):
@@ -230,49 +237,112 @@ def _stack(arrays):
     return out
 
 
-def simulate_batch(configs, roads, road_index=None, fast=True):
+def _generic(configs, road_index, roads_z, roads_zd, dt, record):
+    """Run corners one per thread with :func:`corner_loop` (any law, any controller)."""
+    nc = len(configs)
+    arrs = batch.corner_arrays(configs)
+    acc = np.zeros((nc, len(BATCH_METRICS)))
+    steps = roads_z.shape[1] - 1
+    out = np.zeros((nc, steps, len(CHANNELS))) if record else np.zeros((1, 1, len(CHANNELS)))
+    nstate = max(dmp.n_state_of(c.damper) for c in configs) + 8
+    _batch(_stack([a[0] for a in arrs]), np.array([a[1] for a in arrs], dtype=np.int64),
+           _stack([a[2] for a in arrs]), _stack([a[3] for a in arrs]),
+           np.array([a[4] for a in arrs], dtype=np.int64), _stack([a[5] for a in arrs]),
+           road_index, roads_z, roads_zd, dt,
+           np.array([_delay_steps(c) for c in configs], dtype=np.int64), _wk(dt), nstate,
+           acc, record, out)
+    return acc, (out if record else None)
+
+
+def kernel_of(config, fast=True, record=False):
+    """Name the kernel :func:`simulate_batch` runs a corner on: 'affine', 'exact' or 'generic'.
+
+    'affine': :func:`~mr_suspension.core.batch.run` (affine-tanh law at constant current,
+    reciprocals and fastmath: metrics equal to the one-corner run to about 1e-13); 'exact':
+    :func:`~mr_suspension.core.batch.run_exact` (any control law with estimation, driver and
+    stateless affine-tanh damper and inverse model: the one-corner operations in the same
+    order, so bit for bit the same numbers); 'generic': :func:`corner_loop` per thread.
+    """
+    if not fast:
+        return 'generic'
+    if not record and batch.eligible([config]):
+        return 'affine'
+    return 'exact' if batch.exact_eligible(config) else 'generic'
+
+
+def simulate_batch(configs, roads, road_index=None, fast=True, record=False):
     """Simulate many corners in parallel; returns a dict of metric arrays (one per corner).
 
     ``configs`` is a sequence of :class:`CornerConfig` (same ``dt``), ``roads`` a sequence of
     roads of equal length, ``road_index[c]`` which road corner ``c`` drives (default: all the
-    first). Metrics are accumulated online (no time histories are stored). Corners with
-    affine-tanh laws at constant current take the vectorised kernel of
-    :mod:`~mr_suspension.core.batch` unless ``fast`` is False; the others the generic one.
+    first). Metrics are accumulated online. Each corner takes the fastest kernel that computes
+    its one-corner result (:func:`kernel_of`); ``fast=False`` forces the generic one.
+    ``record=True`` also returns the time histories under ``'data'`` (corners x steps x
+    :data:`CHANNELS`, as :attr:`SimResult.data`; memory grows with corners times steps).
     """
     configs = list(configs)
     roads = list(roads)
     if not configs or not roads:
         raise ValueError('simulate_batch needs at least one config and one road')
+    for c in configs:
+        if not isinstance(c, CornerConfig):
+            raise ValueError(f'simulate_batch: configs must be CornerConfig, got '
+                             f'{type(c).__name__}')
     dt = configs[0].dt
     if any(abs(c.dt - dt) > 1e-15 for c in configs):
         raise ValueError('simulate_batch: all corners must share dt')
     n = roads[0].z.size
     for road in roads:
         _check_road(road, dt)
-        if road.z.size != n:
+        if road.z.size != n or road.zdot.size != n:
             raise ValueError('simulate_batch: all roads must have the same length')
+    if n < 2:
+        raise ValueError('simulate_batch: a road needs at least two samples (one step)')
     nc = len(configs)
-    road_index = np.zeros(nc, dtype=np.int64) if road_index is None else \
-        np.asarray(road_index, dtype=np.int64)
-    if road_index.shape != (nc,) or road_index.min() < 0 or road_index.max() >= len(roads):
-        raise ValueError('simulate_batch: road_index must give a valid road for every corner')
+    if road_index is None:
+        road_index = np.zeros(nc, dtype=np.int64)
+    else:
+        raw = np.asarray(road_index)
+        if raw.shape != (nc,) or not np.issubdtype(raw.dtype, np.integer):
+            raise ValueError(f'simulate_batch: road_index must be {nc} integers (one road per '
+                             f'corner), got shape {raw.shape} of {raw.dtype}')
+        road_index = raw.astype(np.int64)
+    if road_index.min() < 0 or road_index.max() >= len(roads):
+        raise ValueError(f'simulate_batch: road_index must give a valid road (0 to '
+                         f'{len(roads) - 1}) for every corner')
     roads_z = np.stack([r.z for r in roads])
     roads_zd = np.stack([r.zdot for r in roads])
     steps = n - 1
-    if fast and batch.eligible(configs):
-        acc = batch.run(configs, road_index, roads_z, roads_zd, dt, wk_sos(dt),
-                        len(BATCH_METRICS))
-        return _metrics_from_acc(acc, steps, dt)
-    arrs = [c.arrays() for c in configs]
+    sos = _wk(dt)
+    memo = {}
+    for c in configs:  # the choice depends on the damper and the controller only
+        key = (id(c.damper), id(c.controller))
+        if key not in memo:
+            memo[key] = kernel_of(c, fast, record)
+    kinds = np.array([memo[id(c.damper), id(c.controller)] for c in configs])
     acc = np.zeros((nc, len(BATCH_METRICS)))
-    nstate = max(dmp.n_state_of(c.damper) for c in configs) + 8
-    _batch(_stack([a[0] for a in arrs]), np.array([a[1] for a in arrs], dtype=np.int64),
-           _stack([a[2] for a in arrs]), _stack([a[3] for a in arrs]),
-           np.array([a[4] for a in arrs], dtype=np.int64), _stack([a[5] for a in arrs]),
-           road_index, roads_z, roads_zd, dt,
-           np.array([_delay_steps(c) for c in configs], dtype=np.int64), wk_sos(dt), nstate,
-           acc)
-    return _metrics_from_acc(acc, steps, dt)
+    data = np.zeros((nc, steps, len(CHANNELS))) if record else None
+    for kind in ('affine', 'exact', 'generic'):
+        sel = np.flatnonzero(kinds == kind)
+        if sel.size == 0:
+            continue
+        part = [configs[j] for j in sel]
+        if kind == 'affine':
+            acc[sel] = batch.run(part, road_index[sel], roads_z, roads_zd, dt, sos,
+                                 len(BATCH_METRICS))
+            continue
+        if kind == 'exact':
+            a, hist = batch.run_exact(part, road_index[sel], roads_z, roads_zd, dt, sos,
+                                      len(BATCH_METRICS), record)
+        else:
+            a, hist = _generic(part, road_index[sel], roads_z, roads_zd, dt, record)
+        acc[sel] = a
+        if record:
+            data[sel] = hist
+    out = _metrics_from_acc(acc, steps, dt)
+    if record:
+        out['data'] = data
+    return out
 
 
 def _metrics_from_acc(acc, steps, dt):
