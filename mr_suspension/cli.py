@@ -12,15 +12,17 @@ import warnings
 
 import yaml
 
-from mr_suspension.core import config, road as roads
+from mr_suspension.core import road as roads
+from mr_suspension.core.corner import build_corner
 from mr_suspension.core.metrics import ride_metrics
-from mr_suspension.core.simulator import CornerConfig, simulate
+from mr_suspension.core.simulator import simulate
 
 DEBUG_ENV = 'MR_SUSPENSION_DEBUG'  # set to 1 for tracebacks instead of one-line errors
 # Commands of the plugins that need more than numpy/scipy (shown as unavailable if those fail).
 PLUGIN_COMMANDS = {'mr_suspension.nodes.cli': ('nodes',)}
 # Subcommands contributed by the other parts of the package (each has register(subparsers)).
 PLUGINS = ('mr_suspension.identification.cli', 'mr_suspension.evaluation.cli',
+           'mr_suspension.evaluation.tune_cli',
            'mr_suspension.nodes.cli', 'mr_suspension.bagtools')
 
 METRIC_LABELS = {
@@ -31,10 +33,13 @@ METRIC_LABELS = {
     'working_space_rms': ('working space RMS', 'm'),
     'working_space_peak': ('working space peak', 'm'),
     'tyre_load_rms': ('dyn. tyre load RMS', 'N'),
-    'ntf_min': ('min. normalised tyre force', '-'),
+    'ntf_rms': ('normalised dyn. tyre load RMS, (F_t - F_t0) / F_t0', '-'),
+    'ntf_min': ('min. normalised tyre force, F_t / F_t0', '-'),
+    'tyre_force_min': ('min. tyre force', 'N'),
     'lift_off_fraction': ('tyre lift-off fraction', '-'),
     'displacement_difference_peak': ('peak z_s - z_u (seed 003)', 'm'),
     'settling_time': ('settling time', 's'),
+    'damper_energy': ('energy dissipated by the damper', 'J'),
 }
 
 
@@ -67,11 +72,13 @@ def _road_from_args(args, dt):
 
 
 def corner_from_args(args, controller=None):
-    """Build a :class:`CornerConfig` from the common ``--vehicle/--damper/...`` options."""
-    return CornerConfig(car=config.load_vehicle(args.vehicle),
-                        damper=config.load_damper(args.damper),
-                        driver=config.load_driver(args.driver),
-                        controller=config.load_controller(controller or args.controller),
+    """Build a :class:`CornerConfig` from the common ``--vehicle/--damper/...`` options.
+
+    The one builder of the package (:func:`mr_suspension.core.corner.build_corner`): the
+    controller gets this corner's vehicle, damper (inverse model) and driver range, as in the
+    node set and the evaluation.
+    """
+    return build_corner(controller or args.controller, args.vehicle, args.damper, args.driver,
                         dt=args.dt, control_delay=args.control_delay)
 
 
@@ -148,8 +155,7 @@ def cmd_simulate(args):
     cfg = corner_from_args(args)
     cfgs = {_label(args.controller): cfg}
     if args.reference and args.reference != args.controller:
-        cfgs[_label(args.reference)] = cfg.replace(
-            controller=config.load_controller(args.reference))
+        cfgs[_label(args.reference)] = corner_from_args(args, args.reference)
     road = _road_from_args(args, cfg.dt)
     t0 = time.perf_counter()
     metrics = run_comparison(cfgs, road, out, args.road)
@@ -162,15 +168,21 @@ def cmd_simulate(args):
     return 0
 
 
+def _law_list(text):
+    items = tuple(s.strip() for s in text.split(',') if s.strip())
+    if not items:
+        raise argparse.ArgumentTypeError('give at least one law')
+    return items
+
+
 def cmd_demo(args):
-    """Run the default scenario set: bump and ISO 8608 road, semi-active vs passive."""
+    """Run the default scenario set: bump and ISO 8608 road, semi-active vs passive.
+
+    Then the quick tuning study (:func:`demo_tuning`) and the node set.
+    """
     out = output_dir(args.out)
-    base = CornerConfig(car=config.load_vehicle('city_car'),
-                        damper=config.load_damper('rd1005_bingham'),
-                        driver=config.load_driver('wonder_box'))
-    cfgs = {'passive_0A': base.replace(controller=config.load_controller('passive_0A')),
-            'passive_1A': base.replace(controller=config.load_controller('passive_1A')),
-            'skyhook_onoff': base.replace(controller=config.load_controller('skyhook_onoff'))}
+    cfgs = {name: build_corner(name, 'city_car', 'rd1005_bingham', 'wonder_box')
+            for name in ('passive_0A', 'passive_1A', 'skyhook_onoff')}
     scenarios = {'bump': roads.bump(height=0.05, length=2.0, speed=10.0, duration=5.0),
                  'random': roads.iso8608('C', speed=20.0, duration=30.0, seed=1)}
     lines = ['# mr_suspension demo', '',
@@ -179,6 +191,7 @@ def cmd_demo(args):
         metrics = run_comparison(cfgs, road, out, name)
         (out / f'{name}_metrics.json').write_text(json.dumps(metrics, indent=2))
         lines.append(metrics_table(metrics, f'{name} ({road.name}, {road.duration:g} s)'))
+    lines += demo_tuning(out / 'tune', args.quick_laws)
     text = '\n'.join(lines)
     (out / 'metrics.md').write_text(text)
     print(text)
@@ -192,6 +205,42 @@ def cmd_demo(args):
             return nodes_cli.demo(out / 'nodes')
     print(f'wrote {out}/')
     return 0
+
+
+DEMO_LAWS = ('skyhook_onoff', 'skyhook', 'hybrid', 'add', 'sh_add', 'pdd', 'clipped_optimal')
+
+
+def demo_tuning(out, laws=DEMO_LAWS):
+    """Quick tuning study of the demo: carpet plot and semi-active gain at equal space.
+
+    Tunes ``laws`` for comfort over the default road set (working-space RMS at most 90 % of
+    the 0 A damper's on every road, 10 generations) and writes ``out/carpet.png`` and the
+    report; returns the Markdown lines for the demo's summary.
+    """
+    from mr_suspension.evaluation import tune, tune_cli
+    t0 = time.perf_counter()
+    res = tune.study(list(laws), tune.Plant(), comfort_weight=1.0, ws_ratio=0.9, n_passive=41,
+                     maxiter=10, seed=1)
+    tune_cli.write_outputs(res, output_dir(out))
+    best = min(res['tuned'], key=lambda t: t['equal_space']['wk_change_pct'])
+    eq = best['equal_space']
+    lines = ['### Tuned laws against the passive damper (carpet plot: tune/carpet.png)', '',
+             f'Roads {", ".join(res["roads"])}; gains tuned for Wk RMS with the working-space '
+             'RMS at most 90 % of that of the 0 A damper on every road; each law compared with '
+             'the best constant current that uses no more working space on any road '
+             f'(tuning and sweep {time.perf_counter() - t0:.1f} s).', '',
+             '| law | Wk RMS change | tyre load change | passive current [A] |',
+             '|---|---|---|---|']
+    for t in res['tuned']:
+        e = t['equal_space']
+        cur = '-' if e['current'] is None else f'{e["current"]:.3f}'
+        lines.append(f'| {t["label"]} | {e["wk_change_pct"]:+.1f} % | '
+                     f'{e["tyre_change_pct"]:+.1f} % | {cur} |')
+    lines += ['', f'Semi-active buys {-eq["wk_change_pct"]:.1f} % lower Wk-weighted body '
+              f'acceleration RMS ({best["label"]}, road-set mean) than the best passive '
+              f'setting with no more working space, at {eq["tyre_change_pct"]:+.1f} % dynamic '
+              'tyre load.', '']
+    return lines
 
 
 def build_parser():
@@ -216,10 +265,14 @@ def build_parser():
 
     p = sub.add_parser('demo', help='default scenarios (bump and random road)',
                        description='Run the default demo: bump and ISO 8608 class C road, '
-                                   'skyhook vs passive at 0 A and 1 A; then the ROS 2 node '
-                                   'set with a recorded bag when available.')
+                                   'skyhook vs passive at 0 A and 1 A; a quick tuning of the '
+                                   'laws with the carpet plot against the passive damper '
+                                   '(out/tune); then the ROS 2 node set with a recorded bag '
+                                   'when available.')
     p.add_argument('--out', default='out/demo', help='output directory')
     p.add_argument('--no-nodes', action='store_true', help='skip the ROS 2 node-set run')
+    p.add_argument('--quick-laws', default=','.join(DEMO_LAWS), type=_law_list,
+                   help='laws tuned for the carpet plot (default: %(default)s)')
     p.set_defaults(func=cmd_demo)
 
     for name in PLUGINS:
@@ -320,7 +373,7 @@ def run_command(args, prog='mr-suspension'):
         try:
             check_numbers(args)
             code = args.func(args)
-            return code if isinstance(code, int) else 0  # evaluate returns its rows
+            return 0 if code is None else int(code)  # commands return an exit code
         except KeyboardInterrupt:
             print(f'{label}: interrupted', file=sys.stderr)
             return 130

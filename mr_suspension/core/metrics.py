@@ -102,9 +102,14 @@ def settling_time(t, y, band=0.02, t_start=0.0, floor=1e-3):
 def ride_metrics(result, t_event=0.0):
     """Compute the standard metrics of a simulation result (SI units).
 
-    Body acceleration RMS/peak, Wk-weighted RMS and VDV, working space RMS/peak, dynamic tyre
-    load RMS, normalised tyre force RMS and minimum, lift-off fraction, the peak sprung-unsprung
-    displacement difference (seed 003 Tables 3-5) and the body settling time after ``t_event``.
+    Body acceleration RMS/peak [m/s^2], Wk-weighted RMS [m/s^2] and VDV [m/s^1.75], working
+    space RMS/peak [m], dynamic tyre load RMS ``rms(F_t - F_t0)`` [N], normalised dynamic tyre
+    load RMS ``ntf_rms = rms(F_t - F_t0) / F_t0`` [-], normalised minimum tyre force
+    ``ntf_min = min F_t / F_t0`` [-] (1 at rest, 0 at lift-off; F_t0 = (m_s + m_u) g), the
+    minimum tyre force ``tyre_force_min`` [N], lift-off fraction, the peak sprung-unsprung
+    displacement difference (seed 003 Tables 3-5), the body settling time after ``t_event``
+    [s] and the energy the damper dissipated [J]. The same names and units as
+    :func:`mr_suspension.core.corner.batch_metrics`.
     """
     dt = result.dt
     acc = result.a_s
@@ -122,6 +127,7 @@ def ride_metrics(result, t_event=0.0):
         'tyre_load_rms': rms(dyn),
         'ntf_rms': rms(dyn / f_t0),
         'ntf_min': float(np.min(result.f_t / f_t0)),
+        'tyre_force_min': float(np.min(result.f_t)),
         'lift_off_fraction': float(np.mean(result.f_t <= 0.0)),
         'displacement_difference_peak': float(np.max(np.abs(stroke))),
         'settling_time': settling_time(result.t, result.z_s, t_start=t_event),

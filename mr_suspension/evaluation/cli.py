@@ -62,13 +62,8 @@ def _laws(text):
     return [s.strip() for s in text.split(',') if s.strip()]
 
 
-def add_arguments(parser):
-    """Add the evaluate options to ``parser``."""
-    parser.add_argument('--laws', default='all',
-                        help="comma-separated controller sets or law names (default: 'all', "
-                             'the sets listed below)')
-    parser.add_argument('--scenarios', default='quick',
-                        help='comma-separated scenarios or groups (default: %(default)s)')
+def add_plant_arguments(parser):
+    """Add ``--vehicle``, ``--damper`` and ``--driver`` (the corner of ``core.corner``)."""
     parser.add_argument('--vehicle', default='city_car',
                         help='config/vehicles name or YAML path (default: %(default)s)')
     parser.add_argument('--damper', default='rd1005_bingham',
@@ -76,6 +71,16 @@ def add_arguments(parser):
                              'diagnose (default: %(default)s)')
     parser.add_argument('--driver', default='wonder_box',
                         help='config/drivers name or YAML path (default: %(default)s)')
+
+
+def add_arguments(parser):
+    """Add the evaluate options to ``parser``."""
+    parser.add_argument('--laws', default='all',
+                        help="comma-separated controller sets or law names (default: 'all', "
+                             'the sets listed below)')
+    parser.add_argument('--scenarios', default='quick',
+                        help='comma-separated scenarios or groups (default: %(default)s)')
+    add_plant_arguments(parser)
     parser.add_argument('--delay', type=float, default=0.0,
                         help='sensor + compute delay before the driver [s] (default: 0)')
     parser.add_argument('--actuator-scale', type=float, default=1.0,
@@ -160,6 +165,16 @@ def _fmt_rows(rows, keys, scale=None):
 
 
 def run_evaluate(args, log=print):
+    """Run the ``evaluate`` command; return its exit code (0: success).
+
+    A command returns an exit code: returning the metric rows made ``sys.exit(rows)`` exit
+    with 1 after a successful run. :func:`evaluate` returns the rows.
+    """
+    evaluate(args, log)
+    return 0
+
+
+def evaluate(args, log=print):
     """Run the evaluation described by parsed ``args``; returns the metric rows."""
     laws = _laws(args.laws)
     overrides = _parse_sets(args.set)

@@ -135,3 +135,130 @@ def lines(xs, series, path, xlabel, ylabel, title='', logx=False):
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _law_colours(labels):
+    colours = plt.cm.tab10(np.linspace(0.0, 1.0, 10, endpoint=False))
+    return {lab: colours[k % 10] for k, lab in enumerate(labels)}
+
+
+def carpet(study, path, title=''):
+    """Carpet plot of a tuning study: comfort against road holding, working space as limit.
+
+    Panel 1: road-set means normalised by the softest passive setting (the tuning objective's
+    terms); one panel per road in SI units. The passive family (constant currents) is coloured
+    by its working space relative to the limit (hollow: over the limit); each law at its
+    default gains (small hollow marker), tuned (large marker, arrow from the default) and the
+    non-dominated feasible candidates the optimiser visited (thin line).
+    """
+    from mr_suspension.evaluation.tune import pareto_front
+    obj = study['objective_obj']
+    roads = study['roads']
+    sweep = study['passive']
+    tuned = study['tuned']
+    labels = list(study['defaults']) + [t['label'] for t in tuned
+                                        if t['label'] not in study['defaults']]
+    colour = _law_colours(labels)
+    n = 1 + len(roads)
+    cols = 2 if n > 1 else 1
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(6.2 * cols, 4.8 * rows), squeeze=False,
+                             layout='constrained')
+    axes = axes.ravel()
+    ratio = np.max(np.asarray(sweep['working_space_rms']) / obj.limit, axis=1)
+    norm = matplotlib.colors.Normalize(vmin=min(0.5, ratio.min()), vmax=max(1.5, ratio.max()))
+    cmap = plt.cm.viridis
+
+    def xy(met, panel):
+        if panel == 0:
+            return obj.road_holding(met), obj.comfort(met)
+        return (np.asarray(met['tyre_load_rms'])[..., panel - 1],
+                np.asarray(met['body_acc_wk_rms'])[..., panel - 1])
+
+    for panel in range(n):
+        ax = axes[panel]
+        x, y = xy(sweep, panel)
+        # View: the laws, the soft and the best passive settings (the stiff tail runs off).
+        px = [x[0]] + [xy({k: np.asarray(v) for k, v in m.items()}, panel)[0]
+                       for m in list(study['defaults'].values())
+                       + [t['tuned']['metrics'] for t in tuned]]
+        py = [y[0]] + [xy({k: np.asarray(v) for k, v in m.items()}, panel)[1]
+                       for m in list(study['defaults'].values())
+                       + [t['tuned']['metrics'] for t in tuned]]
+        for vals, setter in ((px, ax.set_xlim), (py, ax.set_ylim)):
+            lo, hi = float(np.min(vals)), float(np.max(vals))
+            pad = 0.15 * (hi - lo) + 1e-9
+            setter(lo - pad, hi + pad)
+        ax.plot(x, y, '-', color='0.6', lw=0.8, zorder=1)
+        ok = ratio <= 1.0 + 1e-9
+        ax.scatter(x[ok], y[ok], c=ratio[ok], cmap=cmap, norm=norm, s=14, zorder=2,
+                   label=f'passive, 0..{sweep["current"][-1]:.2f} A')
+        ax.scatter(x[~ok], y[~ok], facecolors='none', edgecolors=cmap(norm(ratio[~ok])),
+                   s=14, zorder=2, label='passive over the limit')
+        for target in (0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0):
+            k = int(np.argmin(np.abs(sweep['current'] - target)))
+            if abs(sweep['current'][k] - target) < 0.01:
+                ax.annotate(f'{sweep["current"][k]:.2f} A', (x[k], y[k]), fontsize=6,
+                            xytext=(4, -9), textcoords='offset points', color='0.3',
+                            annotation_clip=True)
+        best = study.get('best_passive')
+        if best is not None:
+            bx, by = xy({k: np.asarray(v) for k, v in best['metrics'].items()}, panel)
+            ax.plot(bx, by, 'k*', ms=11, zorder=4,
+                    label=f'best passive at the limit ({best["current"]:.2f} A)')
+        for k, (law, met) in enumerate(study['defaults'].items()):
+            dx, dy = xy({kk: np.asarray(v) for kk, v in met.items()}, panel)
+            ax.plot(dx, dy, MARKERS[k % len(MARKERS)], mfc='none', color=colour[law], ms=6,
+                    zorder=3, label=f'{law} (default)' if panel == 0 else None)
+        for t in tuned:
+            c = colour[t['label']]
+            hist = {key: np.asarray(v) for key, v in t['history'].items() if key != 'gains'}
+            feas = obj.violation(hist) <= 1e-9
+            if np.any(feas):
+                hx, hy = xy({key: v[feas] for key, v in hist.items()}, panel)
+                front = pareto_front(hy, hx)
+                ax.plot(hx[front], hy[front], '-', color=c, lw=0.8, alpha=0.7, zorder=2)
+            tx, ty = xy({key: np.asarray(v) for key, v in t['tuned']['metrics'].items()},
+                        panel)
+            dx, dy = xy({key: np.asarray(v) for key, v in t['default']['metrics'].items()},
+                        panel)
+            ax.annotate('', (tx, ty), (dx, dy),
+                        arrowprops={'arrowstyle': '->', 'color': c, 'lw': 0.8})
+            ax.plot(tx, ty, 'o', color=c, ms=9, mec='k', zorder=5,
+                    label=f'{t["label"]} (tuned)')
+        if panel == 0:
+            ax.set_xlabel('dynamic tyre load RMS / softest passive (road-set mean)')
+            ax.set_ylabel('Wk body acc. RMS / softest passive (road-set mean)')
+            ax.set_title('all roads, normalised')
+        else:
+            ax.set_xlabel('dynamic tyre load RMS [N]')
+            ax.set_ylabel('Wk body acceleration RMS [m/s^2]')
+            ax.set_title(f'{roads[panel - 1]}: working-space limit '
+                         f'{1e3 * obj.limit[panel - 1]:.2f} mm RMS')
+        ax.grid(True, alpha=0.3)
+    for ax in axes[n:]:
+        ax.axis('off')
+    axes[0].legend(fontsize=6, ncol=2, loc='upper right')
+    sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
+    fig.colorbar(sm, ax=list(axes[:n]), shrink=0.6,
+                 label='passive: working space RMS / limit (max over roads)')
+    if title:
+        fig.suptitle(title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def transmissibility(curves, path, title=''):
+    """Body-acceleration and tyre-load transmissibility; ``curves``: ``{label: (f, Ha, Ht)}``."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    for k, (label, (f, ha, ht)) in enumerate(curves.items()):
+        style = '--' if label.startswith('passive') else '-'
+        axes[0].loglog(f, ha, style, lw=1.0, label=label)
+        axes[1].loglog(f, ht, style, lw=1.0, label=label)
+    axes[0].set_ylabel('|a_s / z_r| [1/s^2]')
+    axes[1].set_ylabel('|dF_t / z_r| [N/m]')
+    for ax in axes:
+        ax.set_xlabel('frequency [Hz]')
+        ax.grid(True, which='both', alpha=0.3)
+    axes[0].legend(fontsize=7)
+    _save(fig, path, title)

@@ -9,16 +9,12 @@ every time constant and the dead time of the driver and fluid (0 = ideal actuato
 ``control_delay`` adds the sensor and compute latency [s].
 """
 
-from dataclasses import replace
-import math
-
 import numpy as np
 
-from mr_suspension.control.laws import ControllerParams, LAW_IDS
-from mr_suspension.core import config as cfg
-from mr_suspension.core.driver import DriverParams
+from mr_suspension.control.laws import ControllerParams
+from mr_suspension.core import corner
 from mr_suspension.core.metrics import ride_metrics
-from mr_suspension.core.simulator import CornerConfig, simulate, simulate_batch
+from mr_suspension.core.simulator import simulate
 from mr_suspension.evaluation import scenarios as scn
 
 METRICS = ('body_acc_rms', 'body_acc_wk_rms', 'vdv', 'working_space_rms', 'working_space_peak',
@@ -41,69 +37,45 @@ GAIN_SWEEPS = {
 }
 
 
-def _load(kind, loader, value):
-    return value if not isinstance(value, str) else loader(value)
-
-
 def load_damper(value):
     """Damper parameters from an object, a ``config/dampers`` name or YAML, or a ``model.json``.
 
-    A ``model.json`` is a damper fitted by ``mr-suspension diagnose`` (extended law); its
-    current dynamics are not used here (the driver set models them).
+    See :func:`mr_suspension.core.corner.load_damper` (a ``model.json`` is a damper fitted by
+    ``mr-suspension diagnose``; a missing one raises ValueError).
     """
-    if isinstance(value, str) and value.endswith('.json'):
-        from mr_suspension.identification.model_io import load_fitted_model
-        return load_fitted_model(value)[0]
-    return _load('dampers', cfg.load_damper, value)
+    try:
+        return corner.load_damper(value)
+    except FileNotFoundError as exc:
+        if str(value).endswith('.json'):
+            raise ValueError(f'damper model {value}: {exc.strerror or exc}') from None
+        raise
 
 
-def scaled_driver(driver, scale):
-    """Driver with all lags and the dead time multiplied by ``scale`` (>= 0)."""
-    if not (math.isfinite(scale) and scale >= 0.0):
-        raise ValueError(f'actuator scale must be a finite number >= 0, got {scale!r}')
-    return replace(driver, tau_rise=driver.tau_rise * scale, tau_fall=driver.tau_fall * scale,
-                   dead_time=min(driver.dead_time * scale, 0.25),
-                   fluid_tau_rise=driver.fluid_tau_rise * scale,
-                   fluid_tau_fall=driver.fluid_tau_fall * scale)
+scaled_driver = corner.scaled_driver
 
 
 def controller_for(law, overrides=None):
-    """Return the controller parameters of a named set or law, with ``overrides`` applied."""
-    if isinstance(law, ControllerParams):
-        ctrl = law
-        name = law.law
-    elif law in cfg.available('controllers'):
-        ctrl = cfg.load_controller(law)
-        name = law
-    elif law in LAW_IDS:
-        ctrl = ControllerParams(law=law)
-        name = law
-    else:
-        raise ValueError(f'unknown law {law!r}; controller sets: {cfg.available("controllers")}'
-                         f', laws: {sorted(LAW_IDS)}')
+    """Return the controller parameters of a named set or law, with ``overrides`` applied.
+
+    ``overrides`` maps a law or set name (or ``'*'`` for all) to gains, e.g.
+    ``{'skyhook': {'c_sky': 3000}}``.
+    """
+    name = law.law if isinstance(law, ControllerParams) else law
     overrides = overrides or {}
     changes = dict(overrides.get('*', {}))
     changes.update(overrides.get(name, {}))
-    if changes:
-        try:
-            ctrl = ControllerParams.from_dict({**ctrl.to_dict(), **changes})
-        except TypeError as exc:
-            raise ValueError(str(exc)) from None
-    return ctrl
+    return corner.load_controller(law, changes)
 
 
 def build_config(law, vehicle='city_car', damper='rd1005_bingham', driver='wonder_box',
                  control_delay=0.0, actuator_scale=1.0, overrides=None, dt=1e-3):
-    """Corner configuration of ``law`` on the given vehicle, damper and driver (names/objects)."""
-    car = _load('vehicles', cfg.load_vehicle, vehicle)
-    dmp = load_damper(damper)
-    drv = _load('drivers', cfg.load_driver, driver)
-    if not isinstance(drv, DriverParams):
-        raise ValueError('driver must be a DriverParams or a config/drivers name')
-    drv = scaled_driver(drv, actuator_scale)
-    ctrl = controller_for(law, overrides).with_plant(car, dmp, drv)
-    return CornerConfig(car=car, damper=dmp, driver=drv, controller=ctrl, dt=dt,
-                        control_delay=control_delay)
+    """Corner configuration of ``law`` on the given vehicle, damper and driver (names/objects).
+
+    Built by :func:`mr_suspension.core.corner.build_corner`, the builder of every entry point.
+    """
+    return corner.build_corner(controller_for(law, overrides), vehicle, load_damper(damper),
+                               driver, dt=dt, control_delay=control_delay,
+                               actuator_scale=actuator_scale)
 
 
 def run(laws=DEFAULT_LAWS, scenarios=('quick',), vehicle='city_car',
@@ -137,8 +109,12 @@ def run(laws=DEFAULT_LAWS, scenarios=('quick',), vehicle='city_car',
 
 
 def batch_metrics(configs, road):
-    """Online metrics of many configurations on one road (parallel, no time histories)."""
-    return simulate_batch(configs, [road])
+    """Online metrics of many configurations on one road (parallel, no time histories).
+
+    Units as in :func:`~mr_suspension.core.metrics.ride_metrics`
+    (:func:`mr_suspension.core.corner.batch_metrics`).
+    """
+    return corner.batch_metrics(configs, [road])
 
 
 def passive_sweep(values, scenario='iso_C_20', vehicle='city_car',

@@ -22,9 +22,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 import yaml
 
-from mr_suspension.control import laws
 from mr_suspension.core import config as cfg
-from mr_suspension.core.simulator import CornerConfig
+from mr_suspension.core.corner import build_corner
 from mr_suspension.nodes import contract
 
 
@@ -178,14 +177,11 @@ def corner_config(vehicle='city_car', damper='rd1005_bingham', driver='wonder_bo
                   controller='skyhook_onoff', rate=1000.0):
     """Build the corner the nodes and the offline reference use from parameter-set names.
 
-    The controller gets the plant knowledge of the corner (``laws.configure``: vehicle, damper
-    model, driver range), as the evaluation does.
+    The same builder as the CLI and the evaluation
+    (:func:`mr_suspension.core.corner.build_corner`): the controller gets the plant knowledge
+    of the corner (vehicle, damper model, driver range).
     """
-    car = cfg.load_vehicle(vehicle)
-    dmp = cfg.load_damper(damper)
-    drv = cfg.load_driver(driver)
-    return CornerConfig(car=car, damper=dmp, driver=drv,
-                        controller=laws.configure(controller, car, dmp, drv), dt=1.0 / rate)
+    return build_corner(controller, vehicle, damper, driver, dt=1.0 / rate)
 
 
 def stamp_to_ns(stamp):
