@@ -21,7 +21,6 @@ one flat array, ``W`` a compile-time chunk width, so LLVM vectorises the loop ov
 The driver's dead time is folded into the command delay in both: a delay and a first-order lag
 commute on an input that starts from rest, so one delay line replaces two ring buffers.
 """
-from dataclasses import fields
 import math
 from operator import attrgetter
 
@@ -35,7 +34,7 @@ from mr_suspension.core import damper as dmp
 from mr_suspension.core.driver import (prepare, Q_AFALL, Q_ARISE, Q_FFALL, Q_FRISE, Q_ITOP,
                                        Q_NDEAD)
 from mr_suspension.core.fastmath import fast_tanh
-from mr_suspension.core.quarter_car import QuarterCarParams
+from mr_suspension.core.quarter_car import BASE_FIELDS, OPTION_FIELDS
 
 CHUNK = 128
 # Rows of the per-corner parameter matrix.
@@ -62,7 +61,8 @@ def affine_tanh(params):
     return None
 
 
-_CAR_FIELDS = attrgetter(*(f.name for f in fields(QuarterCarParams)))
+_CAR_BASE = attrgetter(*BASE_FIELDS)
+_CAR_OPTIONS = attrgetter(*OPTION_FIELDS)
 
 
 def corner_arrays(configs):
@@ -79,8 +79,9 @@ def corner_arrays(configs):
         if key not in memo:
             memo[key] = cfg.damper_static_force()
         key = ('car', id(cfg.car), memo[key])
-        if key not in memo:  # QuarterCarParams.to_array(f_d0), without its per-call fields()
-            memo[key] = np.array(_CAR_FIELDS(cfg.car) + (key[2],), dtype=np.float64)
+        if key not in memo:  # QuarterCarParams.to_array(f_d0), without its per-call getattr
+            memo[key] = np.array(_CAR_BASE(cfg.car) + (key[2],) + _CAR_OPTIONS(cfg.car),
+                                 dtype=np.float64)
         car = memo[key]
         key = ('damper', id(cfg.damper))
         if key not in memo:
@@ -99,9 +100,9 @@ def corner_arrays(configs):
 
 
 def eligible(configs):
-    """Tell whether every corner has an affine-tanh law and a constant-current controller."""
+    """Tell whether every corner has an affine-tanh law at constant current, no model option."""
     return all(c.controller.law == 'constant' and affine_tanh(c.damper) is not None
-               for c in configs)
+               and not c.car.options_on for c in configs)
 
 
 @njit(fastmath=True, error_model='numpy', cache=True)
@@ -243,7 +244,7 @@ def run(configs, road_index, roads_z, roads_zd, dt, sos, n_metrics):
     P = np.zeros((N_ROWS, nc))
     for c, (cfg, arrs) in enumerate(zip(configs, corner_arrays(configs))):
         car, _law, _dp, q, _cid, cp = arrs
-        P[R_MS:R_FD0 + 1, c] = car
+        P[R_MS:R_FD0 + 1, c] = car[:R_FD0 + 1]  # the model options are off here
         P[R_F0:R_B + 1, c] = affine_tanh(cfg.damper)
         P[R_ITOP, c] = q[Q_ITOP]
         P[R_ARISE, c] = q[Q_ARISE]
@@ -310,11 +311,12 @@ def exact_eligible(cfg):
 
     Plant damper and, for the laws that invert it, the controller's damper model must be
     linear, smooth Bingham or seed 002's tanh law; the sensor-noise study option is not
-    supported (``log``/``cos`` per sample do not vectorise).
+    supported (``log``/``cos`` per sample do not vectorise), nor are the corner-level model
+    options of :class:`~mr_suspension.core.quarter_car.QuarterCarParams` (generic kernel).
     """
     c = cfg.controller
     if dmp.law_id_of(cfg.damper) not in EXACT_DAMPERS or c.noise_acc > 0.0 \
-            or c.noise_stroke > 0.0:
+            or c.noise_stroke > 0.0 or cfg.car.options_on:
         return False
     return c.law not in laws.INVERSE_LAWS or dmp.law_id_of(c.inverse_model) in EXACT_DAMPERS
 
@@ -810,7 +812,7 @@ def _exact_matrix(configs, arrs, dt):
     """Parameter matrix (``X_ROWS`` x corners) and the branch key of every corner."""
     nc = len(configs)
     P = np.zeros((X_ROWS, nc))
-    P[X_MS:X_FD0 + 1] = np.array([a[0] for a in arrs]).T
+    P[X_MS:X_FD0 + 1] = np.array([a[0][:X_FD0 + 1] for a in arrs]).T
 
     def damper(a):
         col = np.zeros(6)

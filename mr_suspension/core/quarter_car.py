@@ -9,19 +9,43 @@ Seed 003, eqs. (4.3)-(4.4) and seed 001, eqs. (2)-(3), written about the static 
 ``P = m_s g + F_d0`` is the spring preload that balances gravity and the damper's static force
 (accumulator), so the car rests at z = 0. The tyre cannot pull (lift-off) and the end stops are
 stiff springs beyond the stroke limits.
+
+Corner-level model options (all off by default; off, the step is the same arithmetic as
+without them, bit for bit). The strut force becomes
+
+    S = P - k_s x - k_s3 x^3 - F_d - F_fric - F_stop(x) - F_bs(x)
+    F_fric = f_fric tanh(v / v_fric)                            (strut friction)
+    F_bs = k_bs (|x| - x_bs)^2 sign(x)   for |x| > x_bs          (progressive bump/rebound stop)
+
+and with a top mount (``k_tm > 0``) the strut acts between the wheel and the strut top, a node
+of mass ``m_t = TOP_MOUNT_MASS_FRACTION m_s`` (taken from the sprung mass, so the static load is
+unchanged) tied to the body by ``M = k_tm (z_t - z_s) + c_tm (v_t - v_s)``:
+
+    (m_s - m_t) z_s'' = M,    m_t z_t'' = S - M - m_t g (about equilibrium),    x = z_t - z_u.
+
+Every option's tangent enters the implicit step's Jacobian (3 x 3 with the top mount).
 """
 
 from dataclasses import dataclass
+import math
 
 from numba import njit
 import numpy as np
 
 from mr_suspension.core.validation import check_declared, param, ParamsMixin
 
-# Parameter array layout (QuarterCarParams.to_array + the damper static force).
-CAR_MS, CAR_MU, CAR_KS, CAR_KT, CAR_CT, CAR_XMAX, CAR_XMIN, CAR_KSTOP, CAR_G, CAR_FD0 = range(10)
-# State layout: body and wheel displacement and velocity.
-ZS, ZU, VS, VU = range(4)
+# Parameter array layout (QuarterCarParams.to_array): the base fields, the damper static force,
+# then the corner-level model options.
+(CAR_MS, CAR_MU, CAR_KS, CAR_KT, CAR_CT, CAR_XMAX, CAR_XMIN, CAR_KSTOP, CAR_G, CAR_FD0,
+ CAR_FFRIC, CAR_VFRIC, CAR_XBS, CAR_KBS, CAR_KS3, CAR_KTM, CAR_CTM) = range(17)
+N_CAR = 17
+BASE_FIELDS = ('m_s', 'm_u', 'k_s', 'k_t', 'c_t', 'stroke_max', 'stroke_min', 'k_stop', 'g')
+OPTION_FIELDS = ('f_fric', 'v_fric', 'x_bs', 'k_bs', 'k_s3', 'k_tm', 'c_tm')
+# State layout: body and wheel displacement and velocity, then the strut top (top mount only).
+ZS, ZU, VS, VU, ZT, VT = range(6)
+N_STATE = 6
+# Mass of the strut-top node (spring seat, bearing, mount inner part) as a fraction of m_s.
+TOP_MOUNT_MASS_FRACTION = 0.01
 
 
 @dataclass(frozen=True)
@@ -37,13 +61,54 @@ class QuarterCarParams(ParamsMixin):
     stroke_min: float = param(-0.10, -1.0, -1.0e-3, 'm', 'bump stop position, negative')
     k_stop: float = param(2.0e5, 0.0, 1.0e9, 'N/m', 'end-stop stiffness')
     g: float = param(9.81, 0.1, 100.0, 'm/s^2', 'gravitational acceleration')
+    # Corner-level model options (off by default; a vehicle file may omit them).
+    f_fric: float = param(0.0, 0.0, 5000.0, 'N', 'strut friction amplitude, '
+                          'F = f_fric tanh(v / v_fric)', required=False)
+    v_fric: float = param(0.005, 1.0e-4, 0.1, 'm/s', 'strut friction smoothing velocity',
+                          required=False)
+    x_bs: float = param(0.0, 0.0, 1.0, 'm', 'free travel before the progressive stop',
+                        required=False)
+    k_bs: float = param(0.0, 0.0, 1.0e10, 'N/m^2', 'progressive stop coefficient, '
+                        'F = k_bs (|x| - x_bs)^2 sign(x) beyond x_bs (0 = off)', required=False)
+    k_s3: float = param(0.0, 0.0, 1.0e10, 'N/m^3', 'cubic spring term, F = k_s x + k_s3 x^3',
+                        required=False)
+    k_tm: float = param(0.0, 1.0e3, 1.0e8, 'N/m', 'top-mount stiffness (0 = rigid)', off=0.0,
+                        required=False)
+    c_tm: float = param(0.0, 0.0, 1.0e5, 'N s/m', 'top-mount damping', required=False)
 
     def __post_init__(self):
         check_declared(self)
+        if self.c_tm > 0.0 and self.k_tm == 0.0:
+            raise ValueError('QuarterCarParams: c_tm > 0 needs a top mount (k_tm > 0); set '
+                             'k_tm or c_tm = 0')
+
+    @property
+    def options_on(self):
+        """Names of the corner-level model options that are on (empty: the 2-DOF corner)."""
+        out = []
+        if self.f_fric > 0.0:
+            out.append('strut_friction')
+        if self.k_bs > 0.0:
+            out.append('bump_stop')
+        if self.k_s3 != 0.0:
+            out.append('spring_nonlinearity')
+        if self.k_tm > 0.0:
+            out.append('top_mount')
+        return tuple(out)
 
     def to_array(self, f_d0=0.0):
-        """Return the jitted plant's parameter array; ``f_d0`` is the damper's static force."""
-        return np.append(ParamsMixin.to_array(self), float(f_d0))
+        """Return the jitted plant's array (layout ``CAR_*``); ``f_d0``: damper static force."""
+        return np.array([float(getattr(self, n)) for n in BASE_FIELDS] + [float(f_d0)]
+                        + [float(getattr(self, n)) for n in OPTION_FIELDS], dtype=np.float64)
+
+    def strut_force(self, x, v=0.0):
+        """Strut force about equilibrium ``k_s x + k_s3 x^3 + F_stop + F_bs + F_fric`` [N]."""
+        x = np.asarray(x, dtype=float)
+        f = self.k_s * x + self.k_s3 * x ** 3
+        f = f + self.k_stop * (np.maximum(x - self.stroke_max, 0.0)
+                               + np.minimum(x - self.stroke_min, 0.0))
+        f = f + self.k_bs * np.maximum(np.abs(x) - self.x_bs, 0.0) ** 2 * np.sign(x)
+        return f + self.f_fric * np.tanh(np.asarray(v, dtype=float) / self.v_fric)
 
     @property
     def static_tyre_load(self):
@@ -87,6 +152,38 @@ def tyre_force(p, q, z_r, zr_dot):
 
 
 @njit(cache=True)
+def strut_motion(p, q):
+    """Strut stroke and rate ``(x, v)``: body (or strut top with a top mount) minus wheel."""
+    if p[CAR_KTM] > 0.0:
+        return q[ZT] - q[ZU], q[VT] - q[VU]
+    return q[ZS] - q[ZU], q[VS] - q[VU]
+
+
+@njit(cache=True)
+def strut_extra(p, x, v):
+    """Option forces and tangents ``(F, dF/dx, dF/dv)``: cubic spring, progressive stop, friction.
+
+    ``F = k_s3 x^3 + k_bs (|x| - x_bs)^2 sign(x) [|x| > x_bs] + f_fric tanh(v / v_fric)``.
+    """
+    f = 0.0
+    k = 0.0
+    c = 0.0
+    if p[CAR_KS3] != 0.0:
+        f += p[CAR_KS3] * x * x * x
+        k += 3.0 * p[CAR_KS3] * x * x
+    if p[CAR_KBS] > 0.0:
+        e = abs(x) - p[CAR_XBS]
+        if e > 0.0:
+            f += p[CAR_KBS] * e * e * (1.0 if x > 0.0 else -1.0)
+            k += 2.0 * p[CAR_KBS] * e
+    if p[CAR_FFRIC] > 0.0:
+        th = math.tanh(v / p[CAR_VFRIC])
+        f += p[CAR_FFRIC] * th
+        c += p[CAR_FFRIC] / p[CAR_VFRIC] * (1.0 - th * th)
+    return f, k, c
+
+
+@njit(cache=True)
 def plant_step(p, q, f_d, c_d, z_r, zr_dot, dt):
     """Advance the corner one step; returns (body acc, wheel acc, tyre force) over the step.
 
@@ -94,8 +191,12 @@ def plant_step(p, q, f_d, c_d, z_r, zr_dot, dt):
     ``(I - dt/2 J_v - dt^2/4 J_z) dv = dt (a_n + dt/2 J_z v_n)`` and
     ``z_{n+1} = z_n + dt/2 (v_n + v_{n+1})``. The damper enters as ``F_d + c_d (v - v_n)``
     with its tangent ``c_d``, which keeps the stiff pre-yield region of MR laws stable.
-    ``z_r, zr_dot`` are the road at mid-step.
+    ``z_r, zr_dot`` are the road at mid-step. The model options add their forces and tangents
+    (:func:`strut_extra`); a top mount (``k_tm > 0``, state of :data:`N_STATE` entries) takes
+    :func:`plant_step_mount`.
     """
+    if p[CAR_KTM] > 0.0:
+        return plant_step_mount(p, q, f_d, c_d, z_r, zr_dot, dt)
     ms = p[CAR_MS]
     mu = p[CAR_MU]
     x = q[ZS] - q[ZU]
@@ -107,6 +208,12 @@ def plant_step(p, q, f_d, c_d, z_r, zr_dot, dt):
     elif x < p[CAR_XMIN]:
         f_stop = p[CAR_KSTOP] * (x - p[CAR_XMIN])
         k_x += p[CAR_KSTOP]
+    c = c_d
+    if p[CAR_KS3] != 0.0 or p[CAR_KBS] > 0.0 or p[CAR_FFRIC] > 0.0:
+        f_x, k_e, c_e = strut_extra(p, x, q[VS] - q[VU])
+        f_stop += f_x
+        k_x += k_e
+        c += c_e
     s_force = ms * p[CAR_G] + p[CAR_FD0] - p[CAR_KS] * x - f_d - f_stop
     f_t_lin = (ms + mu) * p[CAR_G] + p[CAR_KT] * (z_r - q[ZU]) + p[CAR_CT] * (zr_dot - q[VU])
     kt = 0.0
@@ -119,7 +226,6 @@ def plant_step(p, q, f_d, c_d, z_r, zr_dot, dt):
     a_s = (s_force - ms * p[CAR_G]) / ms
     a_u = (f_t - s_force - mu * p[CAR_G]) / mu
     # Jacobians of (a_s, a_u) w.r.t. (z_s, z_u) and (v_s, v_u).
-    c = c_d
     jz11 = -k_x / ms
     jz12 = k_x / ms
     jz21 = k_x / mu
@@ -149,3 +255,112 @@ def plant_step(p, q, f_d, c_d, z_r, zr_dot, dt):
     q[VS] += dv_s
     q[VU] += dv_u
     return dv_s / h, dv_u / h, f_t_mid
+
+
+@njit(cache=True)
+def _solve3(a, r):
+    """Solve the 3 x 3 system ``a y = r`` (Gaussian elimination, partial pivoting)."""
+    m = a.copy()
+    y = r.copy()
+    for i in range(3):
+        piv = i
+        for j in range(i + 1, 3):
+            if abs(m[j, i]) > abs(m[piv, i]):
+                piv = j
+        if piv != i:
+            for k in range(3):
+                m[i, k], m[piv, k] = m[piv, k], m[i, k]
+            y[i], y[piv] = y[piv], y[i]
+        for j in range(i + 1, 3):
+            f = m[j, i] / m[i, i]
+            for k in range(i, 3):
+                m[j, k] -= f * m[i, k]
+            y[j] -= f * y[i]
+    for i in range(2, -1, -1):
+        acc = y[i]
+        for k in range(i + 1, 3):
+            acc -= m[i, k] * y[k]
+        y[i] = acc / m[i, i]
+    return y
+
+
+@njit(cache=True)
+def plant_step_mount(p, q, f_d, c_d, z_r, zr_dot, dt):
+    """Step of the corner with a top mount: body, strut top and wheel, 3 x 3 implicit step.
+
+    ``(m_s - m_t) a_s = M``, ``m_t a_t = S - M - m_t g``, ``m_u a_u = F_t - S - m_u g`` about
+    equilibrium with ``M = m_b g + k_tm (z_t - z_s) + c_tm (v_t - v_s)``, ``S`` the strut force
+    at ``x = z_t - z_u`` and ``m_t = TOP_MOUNT_MASS_FRACTION m_s``; same linearly implicit
+    trapezoidal rule as :func:`plant_step` on ``(z_s, z_t, z_u)``. ``q`` needs
+    :data:`N_STATE` entries.
+    """
+    if q.shape[0] < N_STATE:
+        raise ValueError('plant_step: a top mount needs the 6-entry state (N_STATE)')
+    ms = p[CAR_MS]
+    mu = p[CAR_MU]
+    g = p[CAR_G]
+    mt = TOP_MOUNT_MASS_FRACTION * ms
+    mb = ms - mt
+    ktm = p[CAR_KTM]
+    ctm = p[CAR_CTM]
+    x = q[ZT] - q[ZU]
+    v = q[VT] - q[VU]
+    k_x = p[CAR_KS]
+    f_stop = 0.0
+    if x > p[CAR_XMAX]:
+        f_stop = p[CAR_KSTOP] * (x - p[CAR_XMAX])
+        k_x += p[CAR_KSTOP]
+    elif x < p[CAR_XMIN]:
+        f_stop = p[CAR_KSTOP] * (x - p[CAR_XMIN])
+        k_x += p[CAR_KSTOP]
+    f_x, k_e, c_e = strut_extra(p, x, v)
+    k_x += k_e
+    c = c_d + c_e
+    s_force = ms * g + p[CAR_FD0] - p[CAR_KS] * x - f_d - f_stop - f_x
+    m_dyn = ktm * (q[ZT] - q[ZS]) + ctm * (q[VT] - q[VS])
+    f_t_lin = (ms + mu) * g + p[CAR_KT] * (z_r - q[ZU]) + p[CAR_CT] * (zr_dot - q[VU])
+    kt = 0.0
+    ct = 0.0
+    f_t = 0.0
+    if f_t_lin > 0.0:
+        f_t = f_t_lin
+        kt = p[CAR_KT]
+        ct = p[CAR_CT]
+    a = np.empty(3)
+    a[0] = m_dyn / mb
+    a[1] = (s_force - mb * g - m_dyn - mt * g) / mt
+    a[2] = (f_t - s_force - mu * g) / mu
+    # Jacobians w.r.t. (z_s, z_t, z_u) and (v_s, v_t, v_u).
+    jz = np.zeros((3, 3))
+    jv = np.zeros((3, 3))
+    jz[0, 0] = -ktm / mb
+    jz[0, 1] = ktm / mb
+    jz[1, 0] = ktm / mt
+    jz[1, 1] = -(k_x + ktm) / mt
+    jz[1, 2] = k_x / mt
+    jz[2, 1] = k_x / mu
+    jz[2, 2] = -(k_x + kt) / mu
+    jv[0, 0] = -ctm / mb
+    jv[0, 1] = ctm / mb
+    jv[1, 0] = ctm / mt
+    jv[1, 1] = -(c + ctm) / mt
+    jv[1, 2] = c / mt
+    jv[2, 1] = c / mu
+    jv[2, 2] = -(c + ct) / mu
+    h = dt
+    vel = np.array([q[VS], q[VT], q[VU]])
+    lhs = np.eye(3) - 0.5 * h * jv - 0.25 * h * h * jz
+    rhs = h * (a + 0.5 * h * (jz @ vel))
+    dv = _solve3(lhs, rhs)
+    f_t_mid = 0.0
+    if kt > 0.0:
+        f_t_mid = f_t_lin - kt * h * (0.5 * q[VU] + 0.25 * dv[2]) - 0.5 * ct * dv[2]
+        if f_t_mid < 0.0:
+            f_t_mid = 0.0
+    q[ZS] += h * (q[VS] + 0.5 * dv[0])
+    q[ZT] += h * (q[VT] + 0.5 * dv[1])
+    q[ZU] += h * (q[VU] + 0.5 * dv[2])
+    q[VS] += dv[0]
+    q[VT] += dv[1]
+    q[VU] += dv[2]
+    return dv[0] / h, dv[2] / h, f_t_mid

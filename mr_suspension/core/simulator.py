@@ -24,8 +24,8 @@ from mr_suspension.control.laws import controller_step, ControllerParams, N_CTRL
 from mr_suspension.core import batch, damper as dmp
 from mr_suspension.core.driver import DRIVER_STATE_SIZE, driver_step, DriverParams, prepare
 from mr_suspension.core.metrics import rms, sos_step, wk_sos
-from mr_suspension.core.quarter_car import CAR_G, CAR_MS, CAR_MU, plant_step, QuarterCarParams
-from mr_suspension.core.quarter_car import VS, VU, ZS, ZU
+from mr_suspension.core.quarter_car import CAR_G, CAR_MS, CAR_MU, N_STATE, plant_step
+from mr_suspension.core.quarter_car import QuarterCarParams, strut_motion, VS, VU, ZS, ZU
 from mr_suspension.core.validation import check_range
 
 # Recorded channels of a single-corner run.
@@ -137,8 +137,7 @@ def corner_loop(car_p, law, dp, ds, drv_p, drv_s, cid, cp, cs, road_z, road_zd, 
     f_t0 = (car_p[CAR_MS] + car_p[CAR_MU]) * car_p[CAR_G]
     acc[7] = 1e300
     for k in range(n):
-        x = q[ZS] - q[ZU]
-        v = q[VS] - q[VU]
+        x, v = strut_motion(car_p, q)  # body (or strut top) minus wheel
         m[0] = a_s
         m[1] = a_u
         m[2] = x
@@ -159,7 +158,7 @@ def corner_loop(car_p, law, dp, ds, drv_p, drv_s, cid, cp, cs, road_z, road_zd, 
         zr_dot = 0.5 * (road_zd[k] + road_zd[k + 1])
         a_s, a_u, f_t = plant_step(car_p, q, f_d, c_d, z_r, zr_dot, dt)
         y = sos_step(sos, zi, a_s)  # Wk-weighted body acceleration
-        xs = q[ZS] - q[ZU]
+        xs, vs = strut_motion(car_p, q)
         acc[0] += a_s * a_s
         acc[1] = max(acc[1], abs(a_s))
         acc[2] += y * y
@@ -177,7 +176,7 @@ def corner_loop(car_p, law, dp, ds, drv_p, drv_s, cid, cp, cs, road_z, road_zd, 
             out[k, 4] = a_s
             out[k, 5] = a_u
             out[k, 6] = xs
-            out[k, 7] = q[VS] - q[VU]
+            out[k, 7] = vs
             out[k, 8] = f_d
             out[k, 9] = f_t
             out[k, 10] = i_cmd
@@ -204,7 +203,7 @@ def simulate(config, road):
     ds = np.zeros(dmp.n_state_of(config.damper) + 8)
     drv_s = np.zeros(DRIVER_STATE_SIZE)
     cs = np.zeros(N_CTRL_STATE)
-    q = np.zeros(4)
+    q = np.zeros(N_STATE)
     out = np.empty((road.n_steps, len(CHANNELS)))
     acc = np.zeros(len(BATCH_METRICS))
     corner_loop(car_p, law, dp, ds, drv_p, drv_s, cid, cp, cs, road.z, road.zdot, config.dt,
@@ -222,7 +221,7 @@ def _batch(car_ps, laws, dps, drv_ps, cids, cps, road_idx, roads_z, roads_zd, dt
         ds = np.zeros(nstate)
         drv_s = np.zeros(DRIVER_STATE_SIZE)
         cs = np.zeros(N_CTRL_STATE)
-        q = np.zeros(4)
+        q = np.zeros(N_STATE)
         r = road_idx[c]
         corner_loop(car_ps[c], laws[c], dps[c], ds, drv_ps[c], drv_s, cids[c], cps[c], cs,
                     roads_z[r], roads_zd[r], dt, delays[c], q, out[c] if rec else out[0],
@@ -261,9 +260,10 @@ def kernel_of(config, fast=True, record=False):
     reciprocals and fastmath: metrics equal to the one-corner run to about 1e-13); 'exact':
     :func:`~mr_suspension.core.batch.run_exact` (any control law with estimation, driver and
     stateless affine-tanh damper and inverse model: the one-corner operations in the same
-    order, so bit for bit the same numbers); 'generic': :func:`corner_loop` per thread.
+    order, so bit for bit the same numbers); 'generic': :func:`corner_loop` per thread. A corner
+    with a model option on (:attr:`QuarterCarParams.options_on`) always takes 'generic'.
     """
-    if not fast:
+    if not fast or config.car.options_on:
         return 'generic'
     if not record and batch.eligible([config]):
         return 'affine'
@@ -315,11 +315,11 @@ def simulate_batch(configs, roads, road_index=None, fast=True, record=False):
     steps = n - 1
     sos = _wk(dt)
     memo = {}
-    for c in configs:  # the choice depends on the damper and the controller only
-        key = (id(c.damper), id(c.controller))
+    for c in configs:  # the choice depends on the car, the damper and the controller only
+        key = (id(c.car), id(c.damper), id(c.controller))
         if key not in memo:
             memo[key] = kernel_of(c, fast, record)
-    kinds = np.array([memo[id(c.damper), id(c.controller)] for c in configs])
+    kinds = np.array([memo[id(c.car), id(c.damper), id(c.controller)] for c in configs])
     acc = np.zeros((nc, len(BATCH_METRICS)))
     data = np.zeros((nc, steps, len(CHANNELS))) if record else None
     for kind in ('affine', 'exact', 'generic'):

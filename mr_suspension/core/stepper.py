@@ -161,7 +161,7 @@ class PlantStepper:
             raise ValueError(f'road sampled at dt={road.dt} but the plant steps at '
                              f'dt={config.dt}')
         self.car_p = config.arrays()[0]
-        self.q = np.zeros(4)
+        self.q = np.zeros(qc.N_STATE)  # body, wheel, then the strut top (top mount only)
         self.road = road
         self.dt = config.dt
         self.k = 0
@@ -189,13 +189,13 @@ class PlantStepper:
 
     @property
     def stroke(self):
-        """Stroke ``x = z_s - z_u`` [m] (+ = extension)."""
-        return float(self.q[qc.ZS] - self.q[qc.ZU])
+        """Strut stroke ``x = z_s - z_u`` (``z_t - z_u`` with a top mount) [m] (+ = extension)."""
+        return float(qc.strut_motion(self.car_p, self.q)[0])
 
     @property
     def stroke_rate(self):
-        """Stroke rate ``v = v_s - v_u`` [m/s]."""
-        return float(self.q[qc.VS] - self.q[qc.VU])
+        """Strut stroke rate ``v = v_s - v_u`` (``v_t - v_u`` with a top mount) [m/s]."""
+        return float(qc.strut_motion(self.car_p, self.q)[1])
 
     def road_now(self):
         """Road height and rate at the present sample [m, m/s]."""
@@ -213,6 +213,7 @@ class PlantStepper:
     def warm_up(self):
         """Compile (or load from cache) the jitted plant step on scratch state; return self."""
         qc.plant_step(self.car_p, self.q.copy(), 0.0, 0.0, 0.0, 0.0, self.dt)
+        qc.strut_motion(self.car_p, self.q)
         return self
 
     def step(self, f_d, c_d):
@@ -228,7 +229,6 @@ class PlantStepper:
         self.f_t = float(f_t)
         self.f_d = float(f_d)
         self.k = k + 1
-        if not math.isfinite(self.a_s + self.a_u + self.q[0] + self.q[1] + self.q[2]
-                             + self.q[3]):
+        if not math.isfinite(self.a_s + self.a_u + float(np.sum(self.q))):
             raise FloatingPointError('plant diverged (non-finite state); check parameters')
         return self.a_s, self.a_u, self.f_t

@@ -158,9 +158,11 @@ class PlantNode(Node):
         self.step_timer = None
         if self.lockstep:
             self.create_timer(min(0.5 * self.resend_after, 0.02), self._resend)
+        options = self.config.car.options_on  # corner-level model options of the vehicle set
         self.get_logger().info(
             f'plant: {self.road.name}, {self.road.n_steps} steps of {self.config.dt * 1e3:g} ms, '
-            f'{"lock-step" if self.lockstep else "real time"}')
+            f'{"lock-step" if self.lockstep else "real time"}'
+            + (f', corner options: {", ".join(options)}' if options else ''))
 
     def _init_messages(self):
         """Build serialized templates of the published messages (:class:`cdr.Template`)."""
