@@ -415,5 +415,7 @@ def test_truth_modules_import_nothing_from_the_fitting_code():
             for name in names:
                 assert not name.startswith(FORBIDDEN), f'{path.name} imports {name}'
                 if name.startswith('mr_suspension'):
-                    assert name.startswith('mr_suspension.truth'), f'{path.name}: {name}'
+                    # Road profiles are the experiment's input, not a model under judgement.
+                    assert name.startswith(('mr_suspension.truth', 'mr_suspension.core.road')), \
+                        f'{path.name}: {name}'
         assert 'importlib' not in path.read_text()

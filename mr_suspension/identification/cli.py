@@ -1,4 +1,4 @@
-"""Command line: ``diagnose``, ``diagnose-fleet``, ``predict``, ``doe`` (``register(subparsers)``).
+"""Command line: ``diagnose``, ``diagnose-fleet``, ``diagnose-vehicle``, ``predict``, ``doe``.
 
 Standalone: ``python -m mr_suspension.identification.cli diagnose DATA... --out DIR``.
 """
@@ -134,6 +134,7 @@ def register(subparsers):
     _add_diagnose_options(p, 'no per-set progress lines or summary')
     _add_load_options(p)
     p.set_defaults(func=cmd_diagnose_fleet)
+    _register_vehicle(subparsers)
     p = subparsers.add_parser(
         'predict', help='evaluate a fitted model on a record; writes time,force',
         description='Evaluate model.json (from diagnose) on new records. ' + LOAD_HELP)
@@ -158,6 +159,64 @@ def register(subparsers):
     p.add_argument('--i-max', type=float, default=1.0, help='max current A (default 1.0)')
     p.add_argument('--seed', type=int, default=0)
     p.set_defaults(func=cmd_doe)
+
+
+def _register_vehicle(subparsers):
+    """Add ``diagnose-vehicle`` (``identification/vehicle.py``)."""
+    from mr_suspension.identification import vehicle
+    p = subparsers.add_parser(
+        'diagnose-vehicle', help='diagnose a car corner from its sensor bags/CSV (no load cell)',
+        description="Fit the nominal corner (vehicle, damper, driver from config/) to a car's "
+                    'sensor data through the body equation m_s a_body = strut force, test the '
+                    f'corner catalogue ({", ".join(vehicle.ALL_EFFECTS)}) on held-out blocks, '
+                    'name the cause(s) (or none, ambiguous, partly_explained, untestable) and '
+                    'write report.json, report.md, figures and vehicle.yaml, damper.yaml, '
+                    'driver.yaml for simulate. Inputs: rosbag2 bags of the contract topics '
+                    '(imu/body, imu/wheel, stroke, current_command, coil_current) or CSV with '
+                    'time, body_acc, wheel_acc (IMU specific force, gravity included, z up, '
+                    'm/s^2), stroke (m, + = extension), current_command (A), optional '
+                    "coil_current (A) and road (m, a rig's shaker). See "
+                    'docs/diagnose_vehicle.md.')
+    p.add_argument('data', nargs='+', help='CSV files, rosbag2 bags or directories of them')
+    p.add_argument('--out', required=True, help='output directory')
+    p.add_argument('--namespace', default=None,
+                   help='corner namespace in the bag (e.g. front_left; default: the only one)')
+    p.add_argument('--road-topic', default=None,
+                   help='bag topic with the known road/shaker displacement (Float64, or a '
+                        'JointState with a "road" joint such as truth/state)')
+    p.add_argument('--vehicle', default='city_car', help='nominal vehicle (config name or YAML)')
+    p.add_argument('--damper', default='rd1005_bingham',
+                   help='nominal damper (config name or YAML)')
+    p.add_argument('--driver', default='wonder_box', help='nominal driver (config name or YAML)')
+    p.add_argument('--effects', default=','.join(vehicle.ALL_EFFECTS),
+                   help='comma-separated subset of the catalogue to test')
+    p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
+    p.add_argument('--quiet', action='store_true', help='no summary')
+    p.set_defaults(func=cmd_diagnose_vehicle)
+
+
+def cmd_diagnose_vehicle(args):
+    """Run ``diagnose-vehicle``."""
+    from mr_suspension.cli import output_dir
+    from mr_suspension.identification import vehicle
+    output_dir(args.out)
+    effects = tuple(e.strip() for e in args.effects.split(',') if e.strip())
+    nominal = vehicle.Nominal.load(args.vehicle, args.damper, args.driver)
+    rep, _ = vehicle.diagnose_vehicle(args.data, args.out, nominal, effects,
+                                      namespace=args.namespace, road_topic=args.road_topic,
+                                      make_plots=not args.no_plots)
+    if not args.quiet:
+        h = rep['heldout']
+        causes = ', '.join(f'{c["effect"]} ({c["location"]})' for c in rep['causes']) or 'none'
+        print(f'verdict: {rep["verdict"]}; causes: {causes}; held-out body-acc NRMSE baseline '
+              f'{h["baseline_nrmse"]:.4f} -> extended {h["extended_nrmse"]:.4f}, noise floor '
+              f'{rep["noise_floor"]["nrmse"]:.4f}')
+        for f in rep['sensor']:
+            print(f'sensor: {f["finding"]}: {f.get("detail", "")}')
+        if rep['untestable']:
+            print('untestable with these data: ' + ', '.join(rep['untestable']))
+        print(f'wrote {Path(args.out) / "report.md"} and vehicle.yaml, damper.yaml, driver.yaml')
+    return 0
 
 
 def cmd_diagnose(args):

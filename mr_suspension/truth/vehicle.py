@@ -47,7 +47,7 @@ from numba import njit
 import numpy as np
 import yaml
 
-from mr_suspension.core import road as rd
+import mr_suspension.core.road as rd
 
 EFFECTS = ('strut_friction', 'bump_stop', 'top_mount', 'spring_nonlinearity', 'sprung_mass',
            'current_delay', 'current_lag', 'current_lag_asymmetric', 'current_saturation',

@@ -1,0 +1,1317 @@
+"""``diagnose-vehicle``: what the nominal corner gets wrong on a car's (or rig's) sensor data.
+
+No load cell: the body equation gives the total strut force from the body acceleration,
+
+    m_s a_body = S(x, v, i),   S = -(k_s x + F_d(v, i) + F_fric + F_bs + k_s3 x^3) + const,
+
+so the strut force is fitted in units of acceleration (S/m_s): linear in ``theta`` for fixed
+nonlinear parameters ``eta`` (separable least squares). The baseline is the nominal corner
+(``config/``) with the spring rate and the smooth-Bingham damper refitted,
+``a = b - kappa x - (c0 + c1 i) v / m_s - (fy0 + fy1 i) tanh(v / v_y) / m_s``,
+``i`` the field current from the command through the nominal driver (or the measured coil
+current through the nominal fluid lag). ``m_s`` scales all of it: without a known force it is
+not identifiable (reported as the nominal); with a road (rig shaker displacement) the wheel
+equation ``m_u a_u + m_s a_s = k_t delta + c_t delta'`` (``delta`` the tyre deflection) gives
+``m_s`` and ``k_t``. Effects are judged on held-out blocks with the rig diagnose's rule
+(:func:`mr_suspension.identification.diagnose.accepted`); see docs/diagnose_vehicle.md.
+"""
+
+from dataclasses import asdict, dataclass, field, fields, replace
+import itertools
+import json
+import math
+from pathlib import Path
+import time
+
+from numba import njit
+import numpy as np
+from scipy import signal
+
+from mr_suspension.identification import diagnose, engine, sensors, vehicle_data
+from mr_suspension.identification.data import DataError
+from mr_suspension.identification.vehicle_data import G, nan_safe
+
+N_FOLDS = 5
+BLOCKS_PER_FOLD = 4    # 24 blocks: 5 inner folds and the outer label, dealt in turn
+GAP = 0.1              # [s] dropped at every block edge
+SEARCH_RATE = 250.0    # [Hz] rows used by the selection (the columns run at the full rate)
+MAX_CAUSES = 3
+PARTLY_FACTOR = diagnose.PARTLY_FACTOR
+BIAS_MIN = 0.05        # [m/s^2] accelerometer offset worth reporting (local g varies ~0.03)
+ROAD_HP = 2.0          # [Hz] high-pass of the wheel equation (double integration drifts below)
+ROAD_CLOSE = 0.2       # wheel-equation held-out NRMSE above which m_s is not judged
+MASS_MIN = 0.05        # sprung-mass change below the wheel equation's systematic error
+MATERIAL = 1.5         # a cause must change its signal by >= this x that sensor's noise ...
+G_STRONG = 0.4         # ... or remove this share of the held-out MSE (noise-level, everywhere)
+EDGES_MIN = 4          # current edges each way that make the current dynamics testable
+SENSOR_EFFECTS = ('imu_timing',)  # the stroke lag is a model-free load-time check
+CURRENT_EFFECTS = ('current_delay', 'current_lag', 'current_lag_asymmetric')
+PHYSICS = ('strut_friction', 'bump_stop', 'spring_nonlinearity', 'top_mount') \
+    + CURRENT_EFFECTS + ('current_saturation', 'direction_asymmetry')
+ROAD_EFFECTS = ('sprung_mass',)
+ALL_EFFECTS = SENSOR_EFFECTS + PHYSICS + ROAD_EFFECTS
+EXCLUSIVE = ({'current_lag', 'current_lag_asymmetric'},)
+
+# The one effect -> parameter table: where each fitted effect goes (part, field names). The
+# vehicle fields are QuarterCarParams' corner options (written when the class has them, else
+# reported under ``not_written``); top_mount falls back to the extended damper's k_series.
+EFFECT_PARAMS = {
+    'imu_timing': ('sensor', ('imu_timing',)),
+    'strut_friction': ('vehicle', ('f_fric', 'v_fric')),
+    'bump_stop': ('vehicle', ('k_bs', 'x_bs')),
+    'spring_nonlinearity': ('vehicle', ('k_s3',)),
+    'top_mount': ('vehicle', ('k_tm', 'c_tm')),
+    'sprung_mass': ('vehicle', ('m_s',)),
+    'current_delay': ('driver', ('dead_time',)),
+    'current_lag': ('driver', ('tau_rise', 'tau_fall')),
+    'current_lag_asymmetric': ('driver', ('tau_rise', 'tau_fall')),
+    'current_saturation': ('damper', ('i_sat',)),
+    'direction_asymmetry': ('damper', ('rho',)),
+}
+EFFECT_TEXT = {
+    'imu_timing': 'the body IMU samples are offset in time from the stroke and current (a '
+                  'step-mean acceleration: half a sample; an anti-alias filter delay)',
+    'strut_friction': 'strut (seal, bushing) friction F = f_fric tanh(v / v_fric)',
+    'bump_stop': 'progressive stop k_bs (|x| - x_bs)^2 sign(x) beyond a clearance',
+    'spring_nonlinearity': 'progressive spring k_s x + k_s3 x^3',
+    'top_mount': 'compliant top mount: the damper force reaches the body through a '
+                 'first-order lag tau = c_damper / k_tm',
+    'sprung_mass': 'sprung mass differs from the nominal (wheel equation, needs a road)',
+    'current_delay': 'field current = command delayed by a different dead time',
+    'current_lag': 'different (lumped) first-order current lag',
+    'current_lag_asymmetric': 'lumped current lag with separate rise and fall time constants',
+    'current_saturation': 'yield force saturates with current, fy1 i_s tanh(i / i_s)',
+    'direction_asymmetry': 'damper force scaled by 1 + rho tanh(v / v_y) (rebound vs bump)',
+}
+SEPARATING = {
+    frozenset(('strut_friction', 'direction_asymmetry')): 'slow strokes (< 0.05 m/s) both ways '
+    'at two current levels: friction does not scale with current',
+    frozenset(('strut_friction', 'top_mount')): 'a slow harmonic stroke (0.5 Hz) and a fast '
+    'one (8 Hz) at one amplitude',
+    frozenset(('bump_stop', 'spring_nonlinearity')): 'a slow quasi-static stroke over the '
+    'whole travel (ramp unloading, or a rig run)',
+    frozenset(('current_delay', 'current_lag')): 'current steps up and down while driving '
+    'steadily on a rough road',
+}
+UNTESTABLE_HOW = {
+    'current_delay': 'drive a rough road with the controller switching the current in steps '
+                     '(>= 4 steps each way), e.g. on-off skyhook',
+    'current_lag': 'as current_delay', 'current_lag_asymmetric': 'as current_delay',
+    'current_saturation': 'drive with at least three distinct current levels up to the max',
+    'sprung_mass': 'a quarter-car rig run with the shaker displacement recorded (road column), '
+                   'or a known ballast change',
+    'strut_friction': 'strokes reversing direction (any rough road)',
+    'direction_asymmetry': 'strokes reversing direction (any rough road)',
+    'bump_stop': 'strokes of more than 1 cm (a bump or pothole)',
+    'spring_nonlinearity': 'strokes of more than 1 cm (a bump or pothole)',
+    'top_mount': 'stroke content above 5 Hz (a rough road)',
+    'imu_timing': 'stroke content above 2 Hz',
+}
+
+
+@dataclass
+class Nominal:
+    """The nominal corner: vehicle, damper and driver parameter objects."""
+
+    vehicle: object
+    damper: object
+    driver: object
+
+    @classmethod
+    def load(cls, vehicle='city_car', damper='rd1005_bingham', driver='wonder_box'):
+        """Load from ``config/`` names or YAML paths (as ``simulate`` does)."""
+        from mr_suspension.core.corner import load_damper, load_driver, load_vehicle
+        return cls(load_vehicle(vehicle), load_damper(damper), load_driver(driver))
+
+    def damper_coeffs(self):
+        """Nominal ``(c0, c1, fy0, fy1, v_y)`` [N s/m, N s/(m A), N, N/A, m/s]."""
+        d = self.damper
+        if hasattr(d, 'fc0'):
+            return d.c0, d.c1, d.fc0, d.fc1, d.v_y
+        if hasattr(d, 'fy0'):
+            return d.c0, d.c1, d.fy0, d.fy1, d.v_y
+        return 1500.0, 0.0, 100.0, 400.0, 0.02
+
+
+class Prepared:
+    """Signals of all records concatenated, with fold labels (inner 0..K-1, outer, -1)."""
+
+    def __init__(self, records, nominal):
+        self.records = records
+        self.nominal = nominal
+        self.dt = records[0].dt
+        self.coil = all(r.coil_current is not None for r in records)
+        self.road = all(r.road is not None for r in records)
+        self.t, self.x, self.v, self.y, self.u, self.au, self.slices = [], [], [], [], [], [], []
+        labels, start = [], 0
+        for r in records:
+            cut = r.cutoff
+            self.y.append(sensors.lowpass(r.body_acc - np.mean(r.body_acc[r.mask]), r.dt, cut,
+                                          order=4))
+            self.au.append(sensors.lowpass(r.wheel_acc - np.mean(r.wheel_acc[r.mask]), r.dt,
+                                           cut, order=4))
+            self.x.append(r.stroke if r.stroke_fused is None else r.stroke_fused)
+            self.v.append(r.stroke_rate)
+            u = r.coil_current if self.coil else r.current_command
+            self.u.append(np.clip(u, 0.0, None))
+            self.t.append(r.time)
+            self.slices.append(slice(start, start + r.n))
+            start += r.n
+            labels.append(engine.fold_labels(r, N_FOLDS, GAP, BLOCKS_PER_FOLD, True))
+        self.fold = np.concatenate(labels)
+        self.y_all = np.concatenate(self.y)
+        self.n = start
+        q = max(1, int(round(1.0 / (SEARCH_RATE * self.dt))))
+        sel = np.zeros(self.n, dtype=bool)
+        sel[::q] = True
+        self.search_rows = sel & (self.fold >= 0)
+        self.full_rows = self.fold >= 0
+        self.outer = self.fold == engine.OUTER
+        self.x_abs = np.abs(np.concatenate(self.x))
+        self.i_max = max(float(np.max(np.concatenate(self.u))), 1e-3)
+        self.v_scale = float(np.percentile(np.abs(np.concatenate(self.v)), 99)) or 1e-3
+        self.imu_noise = max(math.sqrt(np.mean([vehicle_data._white(r.body_acc, r.dt) * 0.5
+                                                / r.dt for r in records])), 1e-9)
+
+    def grids(self):
+        """Grids of the nonlinear parameters of each effect (scaled by the data)."""
+        xq = np.percentile(self.x_abs, [50, 70, 80, 90, 95, 98, 99.5])
+        return {
+            'imu_timing': {'imu_timing': np.array([-2, -1.5, -1, -0.75, -0.5, -0.25, 0.25, 0.5,
+                                                   0.75, 1, 1.5, 2]
+                                                  ) * 1e-3},
+            'strut_friction': {'v_fric': np.concatenate((np.geomspace(2e-4, 0.02, 9),
+                                                         -np.geomspace(5e-5, 4e-3, 8)))},
+            'bump_stop': {'x_bs': xq},
+            'spring_nonlinearity': {},
+            'top_mount': {'tau_tm': np.geomspace(2e-3, 0.06, 9)},
+            'current_delay': {'dead_time': np.arange(0.002, 0.061, 0.002)},
+            'current_lag': {'tau': np.geomspace(2e-3, 0.12, 12)},
+            'current_lag_asymmetric': {'tau_rise': np.geomspace(5e-4, 0.12, 9),
+                                       'tau_fall': np.geomspace(5e-4, 0.12, 9)},
+            'current_saturation': {'i_sat': self.i_max * np.array([0.2, 0.35, 0.5, 0.8, 1.2])},
+            'direction_asymmetry': {'rho': np.array([-0.45, -0.3, -0.2, -0.12, -0.06, 0.06,
+                                                     0.12, 0.2, 0.3, 0.45])},
+        }
+
+
+def base_eta(nominal, coil):
+    """Nonlinear parameters of the baseline: nominal v_y and current chain."""
+    d = nominal.driver
+    c0, c1, fy0, fy1, v_y = nominal.damper_coeffs()
+    if coil:
+        chain = (0.0, d.fluid_tau_rise, d.fluid_tau_fall, 0.0, 0.0)
+    else:
+        chain = (d.dead_time, d.tau_rise, d.tau_fall, d.fluid_tau_rise, d.fluid_tau_fall)
+    return {'v_y': float(v_y), 'chain': tuple(float(c) for c in chain)}
+
+
+def _field(u, dt, effects, eta):
+    """Field current: nominal chain (lag rise/fall + dead time, fluid lag) and the effects.
+
+    ``current_delay`` adds a dead time, ``current_lag`` a symmetric first-order stage and
+    ``current_lag_asymmetric`` a stage with its own rise/fall time constants, each in series
+    with the nominal chain (as a slower driver or fluid would be).
+    """
+    dead, tr, tf, ftr, ftf = eta['chain']
+    if 'current_delay' in effects:
+        dead = dead + eta['dead_time']
+    y = engine.field_current(np.ascontiguousarray(u, dtype=float), dt, dead, tr, tf)
+    if ftr > 0 or ftf > 0:
+        y = engine.field_current(y, dt, 0.0, ftr, ftf)
+    if 'current_lag' in effects:
+        y = engine.field_current(y, dt, 0.0, eta['tau'], eta['tau'])
+    if 'current_lag_asymmetric' in effects:
+        y = engine.field_current(y, dt, 0.0, eta['tau_rise'], eta['tau_fall'])
+    return y
+
+
+def driver_check(P):
+    """With a measured coil current: command -> coil against the nominal driver.
+
+    The coil current predicted by the driver's lag (rise/fall) and dead time from the command
+    is scored per inner fold; ``current_delay`` (dead time + k samples, k = 2..60 ms) and then
+    ``current_lag``/``current_lag_asymmetric`` (rise/fall x 0.5..4) are judged by the selection
+    rule. Returns ``(causes, steps, fitted (dead, rise, fall))``.
+    """
+    d = P.nominal.driver
+    cmd = [np.clip(r.current_command, 0.0, None) for r in P.records]
+    coil = np.concatenate([r.coil_current for r in P.records])
+    rows = P.full_rows
+
+    noise = math.sqrt(np.mean([vehicle_data._white(r.coil_current, r.dt) * 0.5 / r.dt
+                               for r in P.records]))
+
+    def predict_coil(dead, tr, tf):
+        out = []
+        for c in cmd:  # lag, then a fractional dead time (a held command: + half a sample)
+            y = engine.field_current(c, P.dt, 0.0, tr, tf)
+            k = np.arange(y.size)
+            out.append(np.interp(k - dead / P.dt, k, y))
+        return np.concatenate(out)
+
+    def sse(dead, tr, tf):
+        e2 = (coil - predict_coil(dead, tr, tf)) ** 2
+        return np.array([e2[rows & (P.fold == f)].sum() for f in range(N_FOLDS)])
+
+    def material(old, new):
+        return float(np.std(predict_coil(*new) - predict_coil(*old))) >= MATERIAL * noise
+
+    # Fine timing first (not a cause): the dead time within +-1 ms of the nominal, as the
+    # command's hold and the stamps place it; the causes are judged against that.
+    fine = d.dead_time + np.arange(-4, 5) * 0.25e-3
+    fine = fine[fine >= 0.0]
+    d0 = float(fine[int(np.argmin([sse(x, d.tau_rise, d.tau_fall).sum() for x in fine]))])
+    nom = sse(d0, d.tau_rise, d.tau_fall)
+    deads = d0 + np.arange(2, 61) * 1e-3
+    errs = [sse(x, d.tau_rise, d.tau_fall) for x in deads]
+    j = int(np.argmin([e.sum() for e in errs]))
+    causes, steps = [], []
+    dead, cur = d0, nom
+    pooled, t, _ = diagnose.fold_stats(errs[j], nom)
+    ok = diagnose.accepted(errs[j], nom) and material(
+        (d0, d.tau_rise, d.tau_fall), (deads[j], d.tau_rise, d.tau_fall))
+    steps.append({'stage': 'driver (command -> coil)', 'effect': 'current_delay',
+                  'gain_mse': round(pooled, 4), 't': round(t, 2), 'accepted': bool(ok),
+                  'eta': {'dead_time': float(deads[j])}})
+    if ok:
+        causes.append('current_delay')
+        dead, cur = float(deads[j]), errs[j]
+    mult = np.array([0.5, 0.75, 1.5, 2.0, 3.0, 4.0])
+    best = None
+    for a in np.concatenate(([1.0], mult)):
+        for b in np.concatenate(([1.0], mult)):
+            if a == b == 1.0:
+                continue
+            e = sse(dead, d.tau_rise * a, d.tau_fall * b)
+            if best is None or e.sum() < best[0].sum():
+                best = (e, a, b)
+    rise, fall = d.tau_rise, d.tau_fall
+    if best is not None:
+        e, a, b = best
+        pooled, t, _ = diagnose.fold_stats(e, cur)
+        ok = diagnose.accepted(e, cur) and material(
+            (dead, d.tau_rise, d.tau_fall), (dead, d.tau_rise * a, d.tau_fall * b))
+        name = 'current_lag' if abs(math.log(a / b)) < 0.5 else 'current_lag_asymmetric'
+        steps.append({'stage': 'driver (command -> coil)', 'effect': name,
+                      'gain_mse': round(pooled, 4), 't': round(t, 2), 'accepted': bool(ok),
+                      'eta': {'tau_rise': d.tau_rise * a, 'tau_fall': d.tau_fall * b}})
+        if ok:
+            causes.append(name)
+            rise, fall = d.tau_rise * a, d.tau_fall * b
+    return causes, steps, (dead, rise, fall)
+
+
+@njit(cache=True, nogil=True)
+def dahl(x, x_pre):
+    """Dahl friction state ``z`` (``F = f_fric z``): ``dz/dx = (1 - z sgn(dx)) / x_pre``.
+
+    Stepped exactly for each stroke increment: ``z = s + (z - s) exp(-|dx| / x_pre)``,
+    ``s = sgn(dx)``; starts at 0.
+    """
+    z = np.empty_like(x)
+    zk = 0.0
+    z[0] = 0.0
+    for k in range(1, x.size):
+        dx = x[k] - x[k - 1]
+        if dx != 0.0:
+            sg = 1.0 if dx > 0.0 else -1.0
+            zk = sg + (zk - sg) * math.exp(-abs(dx) / x_pre)
+        z[k] = zk
+    return z
+
+
+def _shift(t, s, lag):
+    return np.interp(t + lag, t, s)
+
+
+def columns(P, effects, eta):
+    """Regressors ``X`` (n x p, already negated: ``a = X theta``) and their names."""
+    blocks = []
+    names = None
+    for k, sl in enumerate(P.slices):
+        x, v, t = P.x[k], P.v[k], P.t[k]
+        i = _field(P.u[k], P.dt, effects, eta)
+        if 'imu_timing' in effects:  # the motion and current at the IMU sample's time
+            lag = eta['imu_timing']
+            x, v, i = _shift(t, x, lag), _shift(t, v, lag), _shift(t, i, lag)
+        tv = np.tanh(v / eta['v_y'])
+        iy = i
+        if 'current_saturation' in effects:
+            iy = eta['i_sat'] * np.tanh(i / eta['i_sat'])
+        damp = [v, i * v, tv, iy * tv]
+        dn = ['c0', 'c1', 'fy0', 'fy1']
+        if 'direction_asymmetry' in effects:
+            a = 1.0 + eta['rho'] * tv
+            damp = [d * a for d in damp]
+        if 'strut_friction' in effects:
+            # v_fric > 0: velocity friction tanh(v / v_fric); < 0: Dahl, x_pre = -v_fric
+            vf = eta['v_fric']
+            damp.append(np.tanh(v / vf) if vf > 0 else dahl(x, -vf))
+            dn.append('f_fric')
+        if 'top_mount' in effects:
+            al = 1.0 - math.exp(-P.dt / eta['tau_tm'])
+            damp = [signal.lfilter([al], [1.0, al - 1.0], d, zi=[(1.0 - al) * d[0]])[0]
+                    for d in damp]
+        cols = [np.ones_like(x), x] + damp
+        cn = ['offset', 'k_s'] + dn
+        if 'spring_nonlinearity' in effects:
+            cols.append(x ** 3)
+            cn.append('k_s3')
+        if 'bump_stop' in effects:
+            cols.append(np.maximum(np.abs(x) - eta['x_bs'], 0.0) ** 2 * np.sign(x))
+            cn.append('k_bs')
+        blk = np.column_stack(cols)
+        blk[:, 1:] *= -1.0
+        blocks.append(blk)
+        names = cn
+    return np.concatenate(blocks), names
+
+
+@dataclass
+class CV:
+    """Per-fold held-out and training SSE, and the all-inner-data solution."""
+
+    test: np.ndarray
+    train: np.ndarray
+    theta: np.ndarray
+
+
+def _solve(g, h):
+    d = np.sqrt(np.maximum(np.diag(g), 1e-300))
+    gs = g / np.outer(d, d) + 1e-10 * np.eye(g.shape[0])
+    return np.linalg.solve(gs, h / d) / d
+
+
+def cv(X, y, fold, rows):
+    """Blocked K-fold cross-validation of ``y ~ X theta`` on ``rows`` (inner folds only)."""
+    if not np.all(np.isfinite(X[rows])):
+        return CV(np.full(N_FOLDS, np.inf), np.full(N_FOLDS, np.inf), np.zeros(X.shape[1]))
+    Xr, yr, fr = X[rows], y[rows], fold[rows]
+    p = X.shape[1]
+    gk, hk, ek = np.empty((N_FOLDS, p, p)), np.empty((N_FOLDS, p)), np.empty(N_FOLDS)
+    for f in range(N_FOLDS):
+        m = fr == f
+        gk[f], hk[f], ek[f] = Xr[m].T @ Xr[m], Xr[m].T @ yr[m], yr[m] @ yr[m]
+    gt, ht, et = gk.sum(0), hk.sum(0), ek.sum()
+    test, train = np.empty(N_FOLDS), np.empty(N_FOLDS)
+    for f in range(N_FOLDS):
+        g, h, e = gt - gk[f], ht - hk[f], et - ek[f]
+        th = _solve(g, h)
+        train[f] = e - 2 * th @ h + th @ g @ th
+        test[f] = ek[f] - 2 * th @ hk[f] + th @ gk[f] @ th
+    return CV(test, train, _solve(gt, ht))
+
+
+@dataclass
+class Fit:
+    """One model: effects, nonlinear ``eta``, linear ``theta`` (acceleration units), CV."""
+
+    effects: tuple
+    eta: dict
+    theta: np.ndarray
+    names: list
+    cvr: CV
+
+    @property
+    def test(self):
+        """Per-fold held-out SSE."""
+        return self.cvr.test
+
+
+def evaluate(P, effects, eta, rows):
+    """Cross-validate one model at fixed ``eta``."""
+    X, names = columns(P, effects, eta)
+    r = cv(X, P.y_all, P.fold, rows)
+    return Fit(tuple(effects), dict(eta), r.theta, names, r)
+
+
+def search(P, parent, effect, rows, grid=None):
+    """Child ``parent + effect``: grid over its nonlinear parameters, parent's ``eta`` kept.
+
+    Fold ``k``'s held-out error is that of the grid point with the least *training* error
+    of fold ``k`` (no held-out sample chooses its own prediction); the child's ``eta`` is the
+    point with the least training error over all inner folds.
+    """
+    effects = parent.effects + (effect,)
+    g = (grid or P.grids()).get(effect, {})
+    keys = list(g)
+    pts = list(itertools.product(*[g[k] for k in keys])) or [()]
+    fits = []
+    for pt in pts:
+        eta = dict(parent.eta, **dict(zip(keys, (float(v) for v in pt))))
+        fits.append(evaluate(P, effects, eta, rows))
+    train = np.array([f.cvr.train for f in fits])
+    test = np.array([f.cvr.test for f in fits])
+    pick = np.argmin(train, axis=0)
+    best = fits[int(np.argmin(train.sum(1)))]
+    best.cvr = CV(test[pick, np.arange(N_FOLDS)], train[pick, np.arange(N_FOLDS)],
+                  best.cvr.theta)
+    return best
+
+
+def refine(P, fit, rows, names=('v_y',)):
+    """One coordinate sweep of ``v_y`` (and given parameters) around the fit's values."""
+    for key in names:
+        if key not in fit.eta:
+            continue
+        v0 = fit.eta[key]
+        if key == 'rho':
+            cand = v0 + np.linspace(-0.05, 0.05, 5)
+        elif key == 'imu_timing':
+            cand = v0 + np.linspace(-1.5e-3, 1.5e-3, 7)
+        else:
+            cand = v0 * np.geomspace(0.5, 2.0, 9)
+        best, err = fit, fit.cvr.train.sum()
+        for c in cand:
+            f = evaluate(P, fit.effects, dict(fit.eta, **{key: float(c)}), rows)
+            if f.cvr.train.sum() < err:
+                best, err = f, f.cvr.train.sum()
+        fit = best
+    return fit
+
+
+def predict(P, fit, rows=None):
+    """Predicted body acceleration (gravity removed) at every sample."""
+    X, _ = columns(P, fit.effects, fit.eta)
+    return X @ fit.theta
+
+
+# -- the road path: sprung mass and tyre from the wheel equation -----------------------------
+
+def _road_filters(dt, f_hp=ROAD_HP):
+    """Causal ``H(s)`` (4th-order Butterworth high-pass) and ``H(s)/s^2`` as bilinear SOS."""
+    z, p, k = signal.butter(4, 2 * np.pi * f_hp, 'high', analog=True, output='zpk')
+    fs = 1.0 / dt
+    sos_h = signal.zpk2sos(*signal.bilinear_zpk(z, p, k, fs))
+    sos_i = signal.zpk2sos(*signal.bilinear_zpk(z[:-2], p, k, fs))
+    return sos_h, sos_i
+
+
+def wheel_equation(P):
+    """Target and regressors of ``m_u a_u + m_s a_s = k_t delta + c_t delta' + b``.
+
+    Both sides go through the same causal high-pass ``H``; the wheel displacement is
+    ``H/s^2`` of its acceleration, so the relation stays exact without a drifting integral.
+    """
+    ys, xs = [], []
+    mu = P.nominal.vehicle.m_u
+    for k, r in enumerate(P.records):
+        sh, si = _road_filters(r.dt)
+        au = r.wheel_acc - np.mean(r.wheel_acc)
+        a_s = r.body_acc - np.mean(r.body_acc)
+        delta = signal.sosfilt(sh, r.road - r.road[0]) - signal.sosfilt(si, au)
+        ys.append(mu * signal.sosfilt(sh, au))
+        xs.append(np.column_stack([np.ones(r.n), -signal.sosfilt(sh, a_s), delta,
+                                   np.gradient(delta, r.dt)]))
+    return np.concatenate(ys), np.concatenate(xs)
+
+
+def road_fits(P):
+    """Baseline (m_s nominal) and ``sprung_mass`` (m_s free) wheel-equation fits."""
+    yw, Xw = wheel_equation(P)
+    ms0 = P.nominal.vehicle.m_s
+    base = cv(Xw[:, [0, 2, 3]], yw - ms0 * Xw[:, 1], P.fold, P.full_rows)
+    free = cv(Xw, yw, P.fold, P.full_rows)
+    out = {'base': base, 'free': free, 'm_s': float(free.theta[1]),
+           'k_t_base': float(base.theta[1]), 'k_t': float(free.theta[2]),
+           'c_t': float(free.theta[3])}
+    for key, r, X, y in (('base', base, Xw[:, [0, 2, 3]], yw - ms0 * Xw[:, 1]),
+                         ('free', free, Xw, yw)):
+        e = y[P.outer] - X[P.outer] @ r.theta
+        out[f'{key}_outer_nrmse'] = float(np.sqrt(np.mean(e ** 2)) / np.std(yw[P.outer]))
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _corner_kernel(p, zr, zrd, i_f, dt, nsub):
+    """Quarter car with the fitted strut force, from the road; per sample (a_s, x, F_t dyn).
+
+    ``p``: m_s, m_u, k_t, c_t, k_s, c0, c1, fy0, fy1, v_y, f_fric, v_fric (< 0: Dahl with
+    x_pre = -v_fric), k_s3, k_bs, x_bs, tau_tm (0: none), rho, i_sat (0: none). Semi-implicit
+    Euler on ``nsub`` substeps; Dahl stepped exactly; the top mount lags the damper force.
+    """
+    n = zr.size
+    out = np.empty((n, 3))
+    zs = zu = vs = vu = zf = ftm = 0.0
+    h = dt / nsub
+    ms, mu, kt, ct, ks = p[0], p[1], p[2], p[3], p[4]
+    a_s = ft = x = 0.0
+    for k in range(n):
+        i = i_f[k]
+        iy = p[17] * math.tanh(i / p[17]) if p[17] > 0.0 else i
+        for _ in range(nsub):
+            x = zs - zu
+            v = vs - vu
+            tv = math.tanh(v / p[9])
+            fd = ((p[5] + p[6] * i) * v + (p[7] + p[8] * iy) * tv) * (1.0 + p[16] * tv)
+            if p[11] > 0.0:
+                fd += p[10] * math.tanh(v / p[11])
+            elif p[11] < 0.0:
+                dx = v * h
+                if dx != 0.0:
+                    sg = 1.0 if dx > 0.0 else -1.0
+                    zf = sg + (zf - sg) * math.exp(-abs(dx) / -p[11])
+                fd += p[10] * zf
+            if p[15] > 0.0:
+                ftm += (1.0 - math.exp(-h / p[15])) * (fd - ftm)
+                fd = ftm
+            fs = ks * x + p[12] * x * x * x
+            if p[13] > 0.0 and abs(x) > p[14]:
+                fs += p[13] * (abs(x) - p[14]) ** 2 * (1.0 if x > 0.0 else -1.0)
+            s_f = -(fs + fd)
+            ft = kt * (zr[k] - zu) + ct * (zrd[k] - vu)
+            a_s = s_f / ms
+            vs += h * a_s
+            vu += h * (ft - s_f) / mu
+            zs += h * vs
+            zu += h * vu
+        out[k, 0] = a_s
+        out[k, 1] = zs - zu
+        out[k, 2] = ft
+    return out
+
+
+def simulate_corner(P, fit, road, m_s):
+    """Simulate the fitted corner from each record's road; returns per-record outputs."""
+    th = dict(zip(fit.names, fit.theta))
+    e, eta = fit.effects, fit.eta
+    p = np.zeros(18)
+    p[0], p[1], p[2], p[3] = m_s, P.nominal.vehicle.m_u, road['k_t'], max(road['c_t'], 0.0)
+    p[4] = th['k_s'] * m_s
+    p[5], p[6], p[7], p[8] = (th[k] * m_s for k in ('c0', 'c1', 'fy0', 'fy1'))
+    p[9] = eta['v_y']
+    if 'strut_friction' in e:
+        p[10], p[11] = th['f_fric'] * m_s, eta['v_fric']
+    if 'spring_nonlinearity' in e:
+        p[12] = th['k_s3'] * m_s
+    if 'bump_stop' in e:
+        p[13], p[14] = th['k_bs'] * m_s, eta['x_bs']
+    if 'top_mount' in e:
+        p[15] = eta['tau_tm']
+    if 'direction_asymmetry' in e:
+        p[16] = eta['rho']
+    if 'current_saturation' in e:
+        p[17] = eta['i_sat']
+    outs = []
+    for k, r in enumerate(P.records):
+        i_f = _field(P.u[k], P.dt, e, eta)
+        zr = r.road - r.road[0]
+        outs.append(_corner_kernel(p, zr, np.gradient(zr, r.dt), i_f, r.dt, 20))
+    return outs
+
+
+def corner_heldout(P, fits, road):
+    """Full-corner simulation from the road, scored on the outer blocks (rig data).
+
+    Stroke and body acceleration NRMSE against the measured ones, and the RMS of the dynamic
+    tyre load, measured as ``m_s a_s + m_u a_u`` (both IMUs) against the simulated one.
+    """
+    out = {}
+    o = P.outer
+    meas_x = np.concatenate([r.stroke - r.stroke.mean() for r in P.records])
+    for label, fit, m_s in fits:
+        sims = simulate_corner(P, fit, road, m_s)
+        a = np.concatenate([s[:, 0] for s in sims])
+        x = np.concatenate([s[:, 1] for s in sims])
+        ft = np.concatenate([s[:, 2] for s in sims])
+        # measured with the best-known sprung mass (the extended fit's), for every model
+        meas_ft = fits[-1][2] * P.y_all + P.nominal.vehicle.m_u * np.concatenate(P.au)
+        x = x - x[o].mean()
+        out[label] = {
+            'stroke_nrmse': float(np.sqrt(np.mean((x[o] - meas_x[o]) ** 2)) / np.std(meas_x[o])),
+            'body_acc_nrmse': float(np.sqrt(np.mean((a[o] - P.y_all[o]) ** 2))
+                                    / np.std(P.y_all[o])),
+            'tyre_load_rms': float(np.std(ft[o])), 'tyre_load_rms_measured':
+                float(np.std(meas_ft[o])),
+            'working_space_rms': float(np.std(x[o])),
+            'working_space_rms_measured': float(np.std(meas_x[o]))}
+    return out
+
+
+# -- checks, floor, testability ---------------------------------------------------------------
+
+def accel_offset(P):
+    """Mean specific force minus g over the record: bias (or a scale error of g)."""
+    out = []
+    for r in P.records:
+        raw = r.body_acc[r.mask]
+        nb = 24
+        means = np.array([b.mean() for b in np.array_split(raw, nb)])
+        bias = float(raw.mean())
+        se = float(np.std(means, ddof=1) / math.sqrt(nb))
+        if abs(bias) > max(BIAS_MIN, 3 * se):
+            out.append({'finding': 'accelerometer_bias', 'location': 'sensor',
+                        'channel': 'body_acc', 'action': 'corrected', 'record': r.name,
+                        'detail': f'body IMU reads {G + bias:.3f} m/s^2 on average (g = {G}): '
+                                  f'offset {bias:+.3f} m/s^2 (or a scale error of '
+                                  f'{100 * bias / G:+.1f} %; a flip test separates them); '
+                                  'removed', 'bias': bias, 'standard_error': se})
+    return out
+
+
+def noise_floor(P, fit):
+    """Noise floor (NRMSE) from the data: body-IMU noise and the stroke noise through the model.
+
+    Both sensors' white levels come from their spectra above 0.3 fs. The IMU's counts over the
+    fitted band; the stroke's is propagated by adding white noise of that level to the stroke,
+    deriving the rate again and taking the RMS change of the fitted model's prediction
+    (the steep yield branch multiplies stroke-rate noise by ``fy / v_y``).
+    """
+    rng = np.random.default_rng(0)
+    acc2, inp2, var = 0.0, 0.0, 0.0
+    for k, r in enumerate(P.records):
+        fs = 1.0 / r.dt
+        nper = min(r.n // 4, int(2 * fs))
+        f, p = signal.welch(r.body_acc, fs, nperseg=nper)
+        acc2 += float(np.median(p[f >= 0.3 * fs])) * min(r.cutoff, 0.5 * fs) * r.n
+        sx = math.sqrt(vehicle_data._white(r.stroke, r.dt) * 0.5 * fs)
+        a_rel = r.body_acc - r.wheel_acc
+        sa = math.sqrt(vehicle_data._white(a_rel, r.dt) * 0.5 * fs)
+        var += float(np.var(P.y[k])) * r.n
+        if sx > 0:
+            xn = r.stroke + sx * rng.standard_normal(r.n)
+            an = a_rel + sa * rng.standard_normal(r.n)
+            if r.crossover is None:
+                vn = np.gradient(sensors.lowpass(xn, r.dt, r.cutoff, order=4), r.dt)
+            else:
+                xn, vn = vehicle_data.fuse(xn, an, r.dt, r.crossover, r.cutoff, r.stroke_tau)
+            Q = _Swapped(P, k, xn, vn)
+            d = columns(Q, fit.effects, fit.eta)[0] @ fit.theta \
+                - columns(Q.orig, fit.effects, fit.eta)[0] @ fit.theta
+            inp2 += float(np.mean(d ** 2)) * r.n
+    if var <= 0:
+        return {'nrmse': None}
+    return {'nrmse': math.sqrt((acc2 + inp2) / var), 'imu_nrmse': math.sqrt(acc2 / var),
+            'stroke_nrmse': math.sqrt(inp2 / var),
+            'method': 'white levels above 0.3 fs: body IMU over the fitted band, stroke noise '
+                      'propagated through the fitted model'}
+
+
+class _Swapped:
+    """One record of ``P`` with its stroke and rate replaced (for the noise propagation)."""
+
+    def __init__(self, P, k, x, v):
+        sl = P.slices[k]
+        self.orig = _Swapped.__new__(_Swapped)
+        for obj, xx, vv in ((self, x, v), (self.orig, P.x[k], P.v[k])):
+            obj.x, obj.v, obj.t, obj.u = [xx], [vv], [P.t[k]], [P.u[k]]
+            obj.slices, obj.dt = [slice(0, sl.stop - sl.start)], P.dt
+
+
+def testability(P):
+    """Effects the data cannot test, with the manoeuvre that would make them testable."""
+    out = {}
+    u = np.concatenate(P.u)
+    span = float(np.percentile(u, 99) - np.percentile(u, 1))
+    if span < 0.05:
+        for e in CURRENT_EFFECTS + ('current_saturation',):
+            out[e] = 'the current hardly changes'
+    else:
+        du = np.diff(u[::max(1, int(round(0.02 / P.dt)))])  # 20 ms: a lagged current's edge
+        rise, fall = du > 0.2 * span, du < -0.2 * span
+        up = int(np.sum(rise[1:] & ~rise[:-1]) + rise[0])
+        dn = int(np.sum(fall[1:] & ~fall[:-1]) + fall[0])
+        if min(up, dn) < EDGES_MIN:
+            for e in CURRENT_EFFECTS:
+                out[e] = f'{up} current steps up and {dn} down (need {EDGES_MIN} each way)'
+        levels = np.unique(np.round(u / (0.1 * span)))
+        if levels.size < 3:
+            out['current_saturation'] = 'fewer than three current levels'
+    if not P.road:
+        out['sprung_mass'] = 'no road: the strut force scale and the sprung mass are one product'
+    if float(np.percentile(P.x_abs, 99.5)) < 0.01:
+        out['bump_stop'] = 'strokes below 1 cm'
+        out['spring_nonlinearity'] = 'strokes below 1 cm'
+    return {e: {'why': why, 'how': UNTESTABLE_HOW.get(e, '')} for e, why in out.items()}
+
+
+# -- selection ---------------------------------------------------------------------------------
+
+def _compatible(effects, e):
+    return all(not (e in s and set(effects) & (s - {e})) for s in EXCLUSIVE)
+
+
+def _corr(a, b):
+    sa, sb = np.std(a), np.std(b)
+    return float(np.corrcoef(a, b)[0, 1]) if sa > 0 and sb > 0 else 0.0
+
+
+def _without(P, fit, e, rows):
+    effects = tuple(x for x in fit.effects if x != e)
+    return evaluate(P, effects, fit.eta, rows)
+
+
+@dataclass
+class VehicleDiagnosis:
+    """Result: causes, verdict, fits, figures and the fitted corner."""
+
+    verdict: str
+    causes: list
+    sensor: list
+    ambiguous: list
+    untestable: dict
+    base: Fit
+    final: Fit
+    steps: list
+    heldout: dict
+    noise: dict
+    road: dict
+    corner: dict
+    findings: list
+    notes: dict = field(default_factory=dict)
+
+
+def _step(effect, child, parent, stage):
+    pooled, t, _ = diagnose.fold_stats(child.test, parent.test)
+    return {'stage': stage, 'effect': effect, 'gain_mse': round(pooled, 4), 't': round(t, 2),
+            'accepted': bool(diagnose.accepted(child.test, parent.test)),
+            'eta': {k: v for k, v in child.eta.items() if k != 'chain'}}
+
+
+def select(P, effects, untestable, progress=None):
+    """Forward selection with backward check on the inner folds (rig diagnose's rule)."""
+    rows = P.search_rows
+    tick = progress or (lambda label: None)
+    base = refine(P, evaluate(P, (), base_eta(P.nominal, P.coil), rows), rows)
+    tick('baseline')
+    steps, ambiguous = [], []
+    parent = base
+    for e in SENSOR_EFFECTS:
+        if e in effects:
+            child = search(P, parent, e, rows)
+            steps.append(_step(e, child, parent, 'sensor'))
+            tick(e)
+            size = float(np.std(predict(P, child)[rows] - predict(P, parent)[rows]))
+            steps[-1]['contribution_over_noise'] = size / P.imu_noise
+            # A timing offset is judged like the rig's fine timing (fold t >= T_FINE), not by
+            # materiality: a half-sample offset is small per sample yet everywhere.
+            # At the grid's edge (2 ms) it is a physical lag (top mount, current), not timing.
+            edge = abs(child.eta.get(e, 0.0)) >= 0.002 - 1e-9
+            if steps[-1]['accepted'] and steps[-1]['t'] >= diagnose.T_FINE and not edge:
+                parent = child
+            else:
+                steps[-1]['accepted'] = False
+    while len([e for e in parent.effects if e in PHYSICS]) < MAX_CAUSES:
+        cands = [e for e in PHYSICS if e in effects and e not in parent.effects
+                 and e not in untestable and _compatible(parent.effects, e)]
+        if not cands:
+            break
+        kids = {}
+        for e in cands:
+            kids[e] = search(P, parent, e, rows)
+            steps.append(_step(e, kids[e], parent, f'forward {len(parent.effects)}'))
+            tick(e)
+        acc = [e for e in cands if diagnose.accepted(kids[e].test, parent.test)]
+        pred_parent = predict(P, parent)[rows]
+        contrib = {}
+        strong = {}
+        for e in acc:
+            contrib[e] = float(np.std(predict(P, kids[e])[rows] - pred_parent))
+            gain = diagnose.fold_stats(kids[e].test, parent.test)[0]
+            strong[e] = contrib[e] >= MATERIAL * P.imu_noise or gain >= G_STRONG
+            steps.append({'stage': 'materiality', 'effect': e, 'gain_mse': round(gain, 4),
+                          't': 0.0, 'accepted': bool(strong[e]),
+                          'contribution_over_noise': contrib[e] / P.imu_noise})
+        acc = [e for e in acc if strong[e]]
+        if not acc:
+            break
+        acc.sort(key=lambda e: kids[e].test.sum())
+        best = acc[0]
+        cb = predict(P, kids[best])[rows] - pred_parent
+        for other in acc[1:]:
+            co = predict(P, kids[other])[rows] - pred_parent
+            if abs(_corr(cb, co)) >= diagnose.CORR_AMBIG and not diagnose.accepted(
+                    kids[best].test, kids[other].test):
+                ambiguous.append((best, other))
+        parent = refine(P, kids[best], rows, ('v_y',))
+        parent.cvr = evaluate(P, parent.effects, parent.eta, rows).cvr
+    # Backward check: drop a cause whose removal is not rejected by the same rule.
+    changed = True
+    while changed and parent.effects:
+        changed = False
+        for e in parent.effects:
+            red = _without(P, parent, e, rows)
+            ok = diagnose.accepted(parent.test, red.test)
+            steps.append(dict(_step(e, parent, red, 'backward'), kept=bool(ok)))
+            if not ok:
+                parent = red
+                changed = True
+                break
+    # Upgrade a symmetric lag to the asymmetric one when that pays (nested).
+    if 'current_lag' in parent.effects and 'current_lag_asymmetric' in effects:
+        red = _without(P, parent, 'current_lag', rows)
+        up = search(P, red, 'current_lag_asymmetric', rows)
+        steps.append(_step('current_lag->current_lag_asymmetric', up, parent, 'upgrade'))
+        if diagnose.accepted(up.test, parent.test):
+            parent = up
+    # Final polish of every nonlinear parameter (one coordinate sweep, training error).
+    keys = [k for k in parent.eta if k not in ('chain',)]
+    parent = refine(P, parent, P.full_rows, ['v_y'] + [k for k in keys if k != 'v_y'])
+    parent.cvr = evaluate(P, parent.effects, parent.eta, rows).cvr
+    ambiguous = [p for p in ambiguous if p[0] in parent.effects]
+    return base, parent, steps, ambiguous
+
+
+def _drop_losses(P, final, rows):
+    out = {}
+    for e in final.effects:
+        red = _without(P, final, e, rows)
+        out[e] = float(red.test.sum() / final.test.sum() - 1.0)
+    return out
+
+
+def outer_nrmse(P, fit):
+    """Refit ``theta`` on all inner rows at full rate, score on the outer blocks."""
+    X, _ = columns(P, fit.effects, fit.eta)
+    r = cv(X, P.y_all, P.fold, P.full_rows)
+    fit = replace(fit, theta=r.theta, cvr=r)
+    e = P.y_all - X @ fit.theta
+    o = P.outer
+    return fit, float(np.sqrt(np.mean(e[o] ** 2)) / np.std(P.y_all[o])), X @ fit.theta
+
+
+def ride_metrics(P, a_pred):
+    """Wk-weighted RMS of measured and predicted body acceleration on the outer blocks."""
+    from mr_suspension.core.metrics import wk_filter
+    out = {}
+    meas_w, pred_w = [], []
+    for k, sl in enumerate(P.slices):
+        meas_w.append(wk_filter(P.y[k], P.dt))
+        pred_w.append(wk_filter(a_pred[sl], P.dt))
+    mw, pw = np.concatenate(meas_w)[P.outer], np.concatenate(pred_w)[P.outer]
+    out['wk_rms_measured'] = float(np.sqrt(np.mean(mw ** 2)))
+    out['wk_rms_predicted'] = float(np.sqrt(np.mean(pw ** 2)))
+    out['wk_rms_error_pct'] = 100.0 * (out['wk_rms_predicted'] / out['wk_rms_measured'] - 1.0)
+    x = np.concatenate(P.x)[P.outer]
+    out['working_space_rms_measured'] = float(np.sqrt(np.mean((x - x.mean()) ** 2)))
+    return out
+
+
+def corner_params(P, final, road):
+    """Fitted corner in SI units: vehicle, damper, driver fields and what cannot be written."""
+    th = dict(zip(final.names, final.theta))
+    veh = P.nominal.vehicle
+    m_s = road['m_s'] if road and 'sprung_mass' in final.effects else veh.m_s
+    c = {'m_s': m_s, 'k_s': th['k_s'] * m_s}
+    if road:
+        c['k_t'] = road['k_t']
+    c['c0'], c['c1'] = th['c0'] * m_s, th['c1'] * m_s
+    c['fy0'], c['fy1'] = th['fy0'] * m_s, th['fy1'] * m_s
+    c['v_y'] = final.eta['v_y']
+    e = final.effects
+    if 'strut_friction' in e:
+        c['f_fric'], c['v_fric'] = th['f_fric'] * m_s, final.eta['v_fric']
+        if c['v_fric'] < 0:  # Dahl: the tanh law's v_fric at the data's stroke frequency
+            x_all, v_all = np.concatenate(P.x), np.concatenate(P.v)
+            c['friction_shape'], c['x_pre'] = 'dahl', -c['v_fric']
+            c['v_fric'] = c['x_pre'] * float(np.std(v_all) / max(np.std(x_all), 1e-9))
+        else:
+            c['friction_shape'] = 'tanh'
+    if 'bump_stop' in e:
+        c['k_bs'], c['x_bs'] = th['k_bs'] * m_s, final.eta['x_bs']
+    if 'spring_nonlinearity' in e:
+        c['k_s3'] = th['k_s3'] * m_s
+    if 'top_mount' in e:
+        u = np.concatenate(P.u)
+        c_eq = max(c['c0'] + c['c1'] * float(np.mean(u))
+                   + (c['fy0'] + c['fy1'] * float(np.mean(u))) / max(P.v_scale, 1e-3), 1.0)
+        c['k_tm'], c['c_tm'] = c_eq / final.eta['tau_tm'], 0.0
+        c['tau_tm'] = final.eta['tau_tm']
+    if 'current_saturation' in e:
+        c['i_sat'] = final.eta['i_sat']
+    if 'direction_asymmetry' in e:
+        c['rho'] = final.eta['rho']
+    if 'imu_timing' in e:
+        c['imu_timing'] = final.eta['imu_timing']
+    dead, tr, tf, ftr, ftf = final.eta['chain']
+    if P.coil:  # the driver's own dynamics are the nominal's or those fitted command -> coil
+        ftr, ftf = tr, tf  # with a coil current the chain's lag is the fluid's
+        dr = P.nominal.driver
+        dead, tr, tf = P.driver_fit if P.driver_fit else (dr.dead_time, dr.tau_rise,
+                                                          dr.tau_fall)
+    if 'current_delay' in e:
+        dead += final.eta['dead_time']
+    # An extra series lag is lumped into the fluid stage (time constants add: same delay).
+    if 'current_lag' in e:
+        ftr, ftf = ftr + final.eta['tau'], ftf + final.eta['tau']
+    if 'current_lag_asymmetric' in e:
+        ftr, ftf = ftr + final.eta['tau_rise'], ftf + final.eta['tau_fall']
+    c['chain'] = {'dead_time': dead, 'tau_rise': tr, 'tau_fall': tf, 'fluid_tau_rise': ftr,
+                  'fluid_tau_fall': ftf, 'input': 'coil_current' if P.coil else 'command'}
+    return c
+
+
+def run(records, nominal=None, effects=ALL_EFFECTS, progress=None):
+    """Diagnose a corner from its records; returns a :class:`VehicleDiagnosis`."""
+    nominal = nominal or Nominal.load()
+    bad = [e for e in effects if e not in ALL_EFFECTS]
+    if bad:
+        raise DataError(f'unknown effect(s) {bad}; known: {", ".join(ALL_EFFECTS)}')
+    P = Prepared(records, nominal)
+    findings = [f for r in records for f in r.findings] + accel_offset(P)
+    untestable = testability(P)
+    untestable = {e: v for e, v in untestable.items() if e in effects}
+    P.driver_fit = None
+    driver_causes, driver_steps = [], []
+    if P.coil:
+        driver_causes, driver_steps, P.driver_fit = driver_check(P)
+        driver_causes = [e for e in driver_causes if e in effects]
+    base, final, steps, ambiguous = select(P, effects, untestable, progress)
+    steps = driver_steps + steps
+    full = P.full_rows
+    drop = _drop_losses(P, evaluate(P, final.effects, final.eta, full), full)
+    base_o, base_n, base_pred = outer_nrmse(P, base)
+    final_o, fin_n, fin_pred = outer_nrmse(P, final)
+    noise = noise_floor(P, final_o)
+    road = None
+    causes = sorted([e for e in final.effects if e in PHYSICS], key=lambda e: -drop.get(e, 0))
+    causes += [e for e in driver_causes if e not in causes]
+    sensor = [e for e in final.effects if e in SENSOR_EFFECTS]
+    if P.road and 'sprung_mass' in effects:
+        road = road_fits(P)
+        if road['free_outer_nrmse'] > ROAD_CLOSE or road['m_s'] <= 0:
+            untestable['sprung_mass'] = {
+                'why': f'the wheel equation does not close (held-out NRMSE '
+                       f'{road["free_outer_nrmse"]:.2f} > {ROAD_CLOSE}): wheel IMU, road and '
+                       'stroke misaligned or the tyre not linear', 'how': UNTESTABLE_HOW[
+                           'sprung_mass']}
+            road = None
+    if road is not None:
+        ms_change = road['m_s'] / nominal.vehicle.m_s - 1.0
+        ok = diagnose.accepted(road['free'].test, road['base'].test) \
+            and abs(ms_change) >= MASS_MIN
+        pooled, t, _ = diagnose.fold_stats(road['free'].test, road['base'].test)
+        steps.append({'stage': 'wheel equation', 'effect': 'sprung_mass',
+                      'gain_mse': round(pooled, 4), 't': round(t, 2), 'accepted': bool(ok),
+                      'm_s_change': ms_change})
+        if ok:
+            causes.insert(0, 'sprung_mass') if pooled > max(drop.values(), default=0) \
+                else causes.append('sprung_mass')
+            final_o = replace(final_o, effects=final_o.effects + ('sprung_mass',))
+            drop['sprung_mass'] = float(pooled / max(1e-12, 1 - pooled))
+    if road is not None:
+        m_fit = road['m_s'] if 'sprung_mass' in causes else nominal.vehicle.m_s
+        heldout_corner = corner_heldout(P, [('baseline', base_o, nominal.vehicle.m_s),
+                                            ('extended', final_o, m_fit)], road)
+    else:
+        heldout_corner = None
+    verdict = 'none' if not causes else ('ambiguous' if ambiguous else 'named')
+    floor = noise['nrmse']
+    heldout = {'source': 'outer blocks (untouched by fit and selection)',
+               'baseline_nrmse': base_n, 'extended_nrmse': fin_n,
+               'gain': 1.0 - (fin_n / base_n) ** 2 if base_n > 0 else 0.0,
+               'extended_over_floor': fin_n / floor if floor else None,
+               'baseline_ride': ride_metrics(P, base_pred),
+               'extended_ride': ride_metrics(P, fin_pred),
+               'corner_from_road': heldout_corner}
+    if floor and fin_n / floor > PARTLY_FACTOR and verdict != 'ambiguous':
+        verdict = 'partly_explained'
+    corner = corner_params(P, final_o, road)
+    notes = {'input': 'measured coil current through the nominal fluid lag' if P.coil else
+             'current command through the nominal driver (driver and fluid lumped)',
+             'sprung_mass': ('from the wheel equation (road given)' if road else
+                             'not identifiable without a force scale: nominal m_s kept, the '
+                             'strut force is fitted per unit sprung mass'),
+             'drop_loss': drop, 'driver_causes': driver_causes}
+    if road is None:
+        notes['accelerometer_scale'] = ('untestable: a scale error of the body IMU is the '
+                                        'same as a different sprung mass; a flip test (+-1 g) '
+                                        'or a rig run with a road separates it')
+        c_nom = np.array(nominal.damper_coeffs()[:4])
+        c_fit = np.array([corner['c0'], corner['c1'], corner['fy0'], corner['fy1']])
+        if np.dot(c_fit, c_fit) > 0:
+            scale = float(np.dot(c_fit, c_nom) / np.dot(c_fit, c_fit))
+            notes['m_s_if_nominal_damper'] = corner['m_s'] * scale
+    return VehicleDiagnosis(verdict=verdict, causes=causes, sensor=sensor, ambiguous=ambiguous,
+                            untestable=untestable, base=base_o, final=final_o, steps=steps,
+                            heldout=heldout, noise=noise, road=road, corner=corner,
+                            findings=findings, notes=notes), P, (base_pred, fin_pred)
+
+
+# -- outputs ------------------------------------------------------------------------------------
+
+def _quarter_fields():
+    from mr_suspension.core.quarter_car import QuarterCarParams
+    return {f.name for f in fields(QuarterCarParams)}
+
+
+def corner_files(res, nominal):
+    """``(vehicle, damper, driver)`` mappings for YAML, and the fields not written."""
+    c = res.corner
+    veh = asdict(nominal.vehicle)
+    have = _quarter_fields()
+    not_written = {}
+    veh['m_s'], veh['k_s'] = float(c['m_s']), float(max(c['k_s'], 500.0))
+    if 'k_t' in c:
+        veh['k_t'] = float(max(c['k_t'], 5e3))
+    d = {'law': 'extended', 'f0': 0.0, 'c0': float(c['c0']), 'c1': float(c['c1']),
+         'fy0': float(c['fy0']), 'fy1': float(c['fy1']), 'v_y': float(c['v_y']),
+         'i_sat': float(c.get('i_sat', 0.0)), 'x_h': 0.0, 'k_series': 0.0, 'k_gas1': 0.0,
+         'k_gas2': 0.0, 'kappa': 0.0, 'tau_thermal': 600.0, 'rho': float(c.get('rho', 0.0))}
+    for e in res.final.effects:
+        part, names = EFFECT_PARAMS[e]
+        if part != 'vehicle' or e == 'sprung_mass':
+            continue
+        for n in names:
+            if n in have:
+                veh[n] = float(c[n])
+            elif e == 'top_mount':
+                d['k_series'] = float(c['k_tm'])
+                not_written[n] = f'{c[n]:.6g} (damper k_series = k_tm used instead)'
+            else:
+                not_written[n] = float(c[n])
+    drv = asdict(nominal.driver)
+    ch = c['chain']
+    for k in ('dead_time', 'tau_rise', 'tau_fall', 'fluid_tau_rise', 'fluid_tau_fall'):
+        drv[k] = float(ch[k])
+    return veh, d, drv, not_written
+
+
+def write_yaml(path, data, comment):
+    """Write a mapping as YAML with a description line (as ``config/`` files have)."""
+    import yaml
+    body = {'description': comment}
+    body.update(data)
+    Path(path).write_text(yaml.safe_dump(body, sort_keys=False), encoding='utf-8')
+
+
+def report_dict(res, P, elapsed):
+    """Return the JSON report as a dict."""
+    def fnum(x):
+        return nan_safe(x) if isinstance(x, (int, float)) else x
+    return {
+        'tool': 'mr-suspension diagnose-vehicle',
+        'records': [{'name': r.name, 'samples': r.n, 'duration_s': r.duration,
+                     'rate_hz': 1.0 / r.dt, 'stroke_rate_cutoff_hz': r.cutoff,
+                     'coil_current': r.coil_current is not None, 'road': r.road is not None}
+                    for r in P.records],
+        'verdict': res.verdict,
+        'causes': [{'effect': e, 'location': 'driver' if e in res.notes.get('driver_causes', ())
+                    else _location(e, P.coil), 'text': EFFECT_TEXT[e],
+                    'loss_when_dropped': res.notes['drop_loss'].get(e),
+                    'parameters': {n: res.corner.get(n) for n in EFFECT_PARAMS[e][1]
+                                   if n in res.corner or e not in CURRENT_EFFECTS}
+                    if e not in CURRENT_EFFECTS else res.corner['chain']}
+                   for e in res.causes],
+        'sensor': res.findings + [{'finding': e, 'location': 'sensor', 'channel': 'body_acc',
+                                   'action': 'corrected', 'detail': 'a body IMU sample '
+                                   'stamped t belongs to the motion and current at t '
+                                   f'{1e3 * res.corner["imu_timing"]:+.2f} ms (a step mean is '
+                                   '-0.5 sample); the model evaluates them there',
+                                   'shift_s': -res.corner['imu_timing']} for e in res.sensor],
+        'ambiguous': [{'effects': list(p),
+                       'separate_by': SEPARATING.get(frozenset(p), 'a rig run')}
+                      for p in res.ambiguous],
+        'untestable': res.untestable,
+        'heldout': {k: (fnum(v) if not isinstance(v, dict) else v)
+                    for k, v in res.heldout.items()},
+        'noise_floor': res.noise,
+        'road': None if not res.road else {k: v for k, v in res.road.items()
+                                           if not isinstance(v, CV)},
+        'baseline': {'model': 'a = b - k_s/m_s x - (c0 + c1 i) v/m_s - (fy0 + fy1 i) '
+                              'tanh(v/v_y)/m_s', 'theta_per_m_s': dict(
+                                  zip(res.base.names, map(float, res.base.theta))),
+                     'eta': dict(res.base.eta)},
+        'extended': {'effects': list(res.final.effects), 'theta_per_m_s': dict(
+            zip(res.final.names, map(float, res.final.theta))), 'eta': dict(res.final.eta)},
+        'corner': res.corner,
+        'steps': res.steps,
+        'notes': res.notes,
+        'elapsed_s': elapsed,
+    }
+
+
+def _location(e, coil):
+    part = EFFECT_PARAMS[e][0]
+    if part == 'driver':
+        return 'damper' if coil else 'driver'
+    return part
+
+
+def markdown(rep, figures, files):
+    """Return the Markdown report text."""
+    h = rep['heldout']
+    lines = ['# diagnose-vehicle report', '',
+             f'**Verdict: {rep["verdict"]}**; causes: '
+             + (', '.join(f'`{c["effect"]}` ({c["location"]})' for c in rep['causes']) or 'none'),
+             '', '## Held-out (outer blocks)', '',
+             '| model | body acc NRMSE | Wk RMS predicted / measured [m/s^2] |', '|---|---|---|',
+             f'| baseline | {h["baseline_nrmse"]:.4f} | '
+             f'{h["baseline_ride"]["wk_rms_predicted"]:.3f} / '
+             f'{h["baseline_ride"]["wk_rms_measured"]:.3f} |',
+             f'| extended | {h["extended_nrmse"]:.4f} | '
+             f'{h["extended_ride"]["wk_rms_predicted"]:.3f} / '
+             f'{h["extended_ride"]["wk_rms_measured"]:.3f} |', '',
+             f'Noise floor (IMU and stroke noise through the model): NRMSE '
+             f'{rep["noise_floor"]["nrmse"]:.4f}; measured working space (RMS stroke) '
+             f'{h["extended_ride"]["working_space_rms_measured"] * 1e3:.2f} mm.', '']
+    if h.get('corner_from_road'):
+        c = h['corner_from_road']
+        lines += ['Full corner simulated from the road (outer blocks):', '',
+                  '| model | stroke NRMSE | body acc NRMSE | dyn. tyre load RMS sim / meas [N] '
+                  '| working space RMS sim / meas [mm] |', '|---|---|---|---|---|']
+        lines += [f'| {k} | {v["stroke_nrmse"]:.4f} | {v["body_acc_nrmse"]:.4f} | '
+                  f'{v["tyre_load_rms"]:.0f} / {v["tyre_load_rms_measured"]:.0f} | '
+                  f'{1e3 * v["working_space_rms"]:.2f} / '
+                  f'{1e3 * v["working_space_rms_measured"]:.2f} |' for k, v in c.items()]
+        lines.append('')
+    if rep['road']:
+        r = rep['road']
+        lines += [f'Wheel equation (road given): m_s = {r["m_s"]:.1f} kg, k_t = '
+                  f'{r["k_t"]:.0f} N/m; held-out NRMSE nominal m_s {r["base_outer_nrmse"]:.4f}'
+                  f' -> fitted {r["free_outer_nrmse"]:.4f}', '']
+    lines += ['## Causes', '']
+    for c in rep['causes']:
+        params = ', '.join(f'{k} = {v:.4g}' for k, v in c['parameters'].items()
+                           if isinstance(v, (int, float)))
+        lines.append(f'- `{c["effect"]}` ({c["location"]}): {c["text"]}; {params}')
+    if not rep['causes']:
+        lines.append('- none')
+    lines += ['', '## Sensor findings', '']
+    lines += [f'- `{f["finding"]}` ({f.get("channel", "")}, {f.get("action", "")}): '
+              f'{f.get("detail", "")}' for f in rep['sensor']] or ['- none']
+    if rep['ambiguous']:
+        lines += ['', '## Ambiguous', '']
+        lines += [f'- {" / ".join(a["effects"])}: separate by {a["separate_by"]}'
+                  for a in rep['ambiguous']]
+    lines += ['', '## Untestable with these data', '']
+    lines += [f'- `{e}`: {v["why"]}; make it testable: {v["how"]}'
+              for e, v in rep['untestable'].items()] or ['- none']
+    lines += ['', '## Steps (inner folds)', '', '| stage | effect | gain | t | accepted |',
+              '|---|---|---|---|---|']
+    lines += [f'| {s["stage"]} | {s["effect"]} | {s["gain_mse"]:.3f} | {s["t"]} | '
+              f'{s.get("kept", s["accepted"])} |' for s in rep['steps']]
+    lines += ['', '## Fitted corner', '', 'Run it: `mr-suspension simulate --vehicle '
+              f'{files[0]} --damper {files[1]} --driver {files[2]}`', '']
+    for k, v in rep['notes'].items():
+        if isinstance(v, str):
+            lines.append(f'- {k}: {v}')
+    if figures:
+        lines += ['', '## Figures', ''] + [f'![{f}]({f})' for f in figures]
+    return '\n'.join(lines) + '\n'
+
+
+def plots(res, P, preds, out):
+    """Figures: measured vs baseline vs extended, strut force vs stroke rate, residual map."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    names = []
+    base_pred, fin_pred = preds
+    sl = P.slices[0]
+    o = np.nonzero(P.outer[sl])[0]
+    start = o[0] if o.size else 0
+    w = slice(start, min(start + int(3.0 / P.dt), sl.stop - sl.start))
+    t = P.t[0][w]
+    fig, ax = plt.subplots(figsize=(9, 4))
+    ax.plot(t, P.y[0][w], 'k', lw=1, label='measured')
+    ax.plot(t, base_pred[sl][w], 'C0', lw=1, label='baseline')
+    ax.plot(t, fin_pred[sl][w], 'C3', lw=1, label='extended')
+    ax.set_xlabel('time [s] (outer block)')
+    ax.set_ylabel('body acceleration [m/s^2]')
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / 'body_acc.png', dpi=90)
+    plt.close(fig)
+    names.append('body_acc.png')
+    m_s = res.corner['m_s']
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    v = np.concatenate(P.v)
+    k_s = res.corner['k_s']
+    x = np.concatenate(P.x)
+    strut = m_s * P.y_all + k_s * x  # strut force on the body minus the linear spring
+    step = max(1, P.n // 20000)
+    ax.plot(v[::step], -strut[::step], '.', ms=1, color='0.5', label='measured (- m_s a - k_s x)')
+    ax.plot(v[::step], -(m_s * fin_pred + k_s * x)[::step], '.', ms=1, color='C3',
+            label='extended model')
+    ax.set_xlabel('stroke rate [m/s]')
+    ax.set_ylabel('strut force without the spring [N]')
+    ax.legend(markerscale=8)
+    fig.tight_layout()
+    fig.savefig(out / 'strut_force.png', dpi=90)
+    plt.close(fig)
+    names.append('strut_force.png')
+    u = np.concatenate(P.u)
+    r = P.y_all - fin_pred
+    vb = np.quantile(np.abs(v), np.linspace(0, 1, 9))
+    ib = np.quantile(u, np.linspace(0, 1, 6))
+    grid = np.full((5, 8), np.nan)
+    for a in range(5):
+        for b in range(8):
+            m = (u >= ib[a]) & (u <= ib[a + 1]) & (np.abs(v) >= vb[b]) & (np.abs(v) <= vb[b + 1])
+            if m.sum() > 20:
+                grid[a, b] = np.sqrt(np.mean(r[m] ** 2))
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    im = ax.imshow(grid, origin='lower', aspect='auto')
+    ax.set_xlabel('|stroke rate| octile')
+    ax.set_ylabel('current quintile')
+    fig.colorbar(im, label='residual RMS [m/s^2]')
+    fig.tight_layout()
+    fig.savefig(out / 'residual_map.png', dpi=90)
+    plt.close(fig)
+    names.append('residual_map.png')
+    return names
+
+
+def write(res, P, preds, out_dir, nominal, elapsed=None, make_plots=True):
+    """Write report.json, report.md, figures and vehicle/damper/driver YAML into ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    veh, dmp, drv, not_written = corner_files(res, nominal)
+    res.notes['not_written'] = not_written
+    src = 'fitted by mr-suspension diagnose-vehicle'
+    write_yaml(out / 'vehicle.yaml', veh, f'Corner {src} (nominal where not identifiable)')
+    write_yaml(out / 'damper.yaml', dmp, f'Extended damper law {src}')
+    write_yaml(out / 'driver.yaml', drv, f'Driver and fluid current dynamics {src}')
+    files = [str(out / n) for n in ('vehicle.yaml', 'damper.yaml', 'driver.yaml')]
+    rep = report_dict(res, P, elapsed)
+    rep['files'] = files
+    figures = plots(res, P, preds, out) if make_plots else []
+    (out / 'report.json').write_text(json.dumps(_jsonable(rep), indent=1), encoding='utf-8')
+    (out / 'report.md').write_text(markdown(rep, figures, files), encoding='utf-8')
+    return rep
+
+
+def _jsonable(o):
+    if isinstance(o, dict):
+        return {str(k): _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _jsonable(o.tolist())
+    if isinstance(o, (np.floating, float)):
+        return nan_safe(float(o))
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.bool_,)):
+        return bool(o)
+    return o
+
+
+def diagnose_vehicle(paths, out_dir, nominal=None, effects=ALL_EFFECTS, namespace=None,
+                     road_topic=None, make_plots=True, progress=None):
+    """Load, diagnose and write; returns ``(report dict, VehicleDiagnosis)``."""
+    from mr_suspension.identification import vehicle_data
+    t0 = time.time()
+    records = vehicle_data.load(paths, namespace, road_topic)
+    nominal = nominal or Nominal.load()
+    res, P, preds = run(records, nominal, effects, progress)
+    rep = write(res, P, preds, out_dir, nominal, time.time() - t0, make_plots)
+    return rep, res
+
+
+def predict_records(res, records, nominal):
+    """Body acceleration of ``records`` (unseen) by the baseline and extended fits.
+
+    Returns ``(measured, baseline, extended)`` (gravity and mean removed, low-passed as fitted)
+    and the NRMSE of each model over the whole records.
+    """
+    P = Prepared(records, nominal)
+    out = []
+    for fit in (res.base, res.final):
+        X, _ = columns(P, fit.effects, fit.eta)
+        out.append(X @ fit.theta)
+    y = P.y_all
+    nrmse = [float(np.sqrt(np.mean((y - p - np.mean(y - p)) ** 2)) / np.std(y)) for p in out]
+    return (y, out[0], out[1]), {'baseline_nrmse': nrmse[0], 'extended_nrmse': nrmse[1]}

@@ -1,0 +1,197 @@
+"""diagnose-vehicle: recovery on the independent vehicle truth, bad inputs, bag = CSV."""
+
+import json
+
+import numpy as np
+import pytest
+
+from mr_suspension.identification import vehicle, vehicle_data
+from mr_suspension.identification.data import DataError
+
+truth = pytest.importorskip('mr_suspension.truth.vehicle')
+NOMINAL = vehicle.Nominal.load()
+DURATION = 40.0
+
+
+def _case(seed, effects=(), faults=(), **kw):
+    return truth.make_vehicle_case(seed, effects=effects, sensor_faults=faults,
+                                   duration=DURATION, **kw)
+
+
+def _run(case):
+    rec = vehicle_data.build('case', case.columns)
+    res, _, _ = vehicle.run([rec], NOMINAL)
+    return res
+
+
+def test_effect_free_cli_writes_report_and_a_corner_simulate_accepts(tmp_path):
+    from mr_suspension.core.corner import build_corner
+    from mr_suspension.core.road import bump
+    from mr_suspension.core.simulator import simulate
+    from mr_suspension.identification.cli import main
+
+    path = _case(1000).write_csv(tmp_path / 'car.csv')
+    out = tmp_path / 'out'
+    assert main(['diagnose-vehicle', str(path), '--out', str(out), '--quiet']) == 0
+    rep = json.loads((out / 'report.json').read_text())
+    assert rep['causes'] == [] and rep['verdict'] in ('none', 'partly_explained')
+    assert 'sprung_mass' in rep['untestable'] and rep['untestable']['sprung_mass']['how']
+    assert rep['heldout']['extended_nrmse'] < 0.05
+    for name in ('report.md', 'body_acc.png', 'strut_force.png', 'residual_map.png'):
+        assert (out / name).is_file()
+    cfg = build_corner('passive_0A', out / 'vehicle.yaml', out / 'damper.yaml',
+                       out / 'driver.yaml')
+    assert cfg.car.k_s == pytest.approx(11000.0, rel=0.05)
+    res = simulate(cfg, bump(height=0.03, length=1.0, speed=10.0, duration=1.0, dt=cfg.dt))
+    assert np.all(np.isfinite(res.a_s))
+
+
+@pytest.mark.parametrize('effect, seed', [('spring_nonlinearity', 1004), ('current_lag', 1007),
+                                          ('bump_stop', 1002), ('strut_friction', 1015)])
+def test_hidden_effect_is_named_first_with_its_parameter(effect, seed):
+    case = _case(seed, (effect,))
+    assert case.contributions[effect] > 3.0
+    res = _run(case)
+    assert res.causes and res.causes[0] == effect
+    tr = case.truth
+    if effect == 'spring_nonlinearity':
+        # truth: k_s x_p sinh(x/x_p) = k_s x + k_s x^3 / (6 x_p^2) + ...
+        assert res.corner['k_s3'] == pytest.approx(tr.k_s / (6 * tr.x_p ** 2), rel=0.5)
+    elif effect == 'current_lag':
+        extra = res.corner['chain']['fluid_tau_fall'] - NOMINAL.driver.fluid_tau_fall
+        assert extra == pytest.approx(tr.lag_fall, rel=0.35)
+    elif effect == 'strut_friction':  # a Dahl (bristle) friction in the truth
+        assert res.corner['friction_shape'] == 'dahl'
+        assert res.corner['f_fric'] == pytest.approx(tr.f_fric, rel=0.15)
+    else:
+        assert res.corner['k_bs'] > 0 and res.corner['x_bs'] < tr.x_bs + 0.01
+
+
+def test_sprung_mass_needs_a_road_and_is_found_with_one():
+    case = _case(1019, ('sprung_mass',), with_road=True)
+    res = _run(case)
+    assert res.causes[0] == 'sprung_mass'
+    assert res.corner['m_s'] == pytest.approx(case.truth.m_s, rel=0.1)
+    assert res.corner['k_t'] == pytest.approx(case.truth.k_t, rel=0.15)
+    sim = res.heldout['corner_from_road']  # full corner simulated from the road
+    assert sim['extended']['stroke_nrmse'] < 0.6 * sim['baseline']['stroke_nrmse']
+    assert sim['extended']['tyre_load_rms'] == pytest.approx(
+        sim['extended']['tyre_load_rms_measured'], rel=0.1)
+    cols = {k: v for k, v in case.columns.items() if k != 'road'}
+    rec = vehicle_data.build('no_road', cols)
+    res, _, _ = vehicle.run([rec], NOMINAL)
+    assert 'sprung_mass' not in res.causes and 'sprung_mass' in res.untestable
+
+
+def test_sensor_findings_come_first():
+    case = _case(1011, faults=('acc_bias',))
+    rec = vehicle_data.build('case', case.columns)
+    res, _, _ = vehicle.run([rec], NOMINAL)
+    (bias,) = [f for f in res.findings if f['finding'] == 'accelerometer_bias']
+    assert bias['bias'] == pytest.approx(case.sensor.bias, abs=0.05)
+    assert not res.causes
+    lagged = _case(1012, faults=('stroke_lag',))
+    rec = vehicle_data.build('case', lagged.columns)
+    (lag,) = [f for f in rec.findings if f['finding'] == 'stroke_lag']
+    assert lag['tau_s'] == pytest.approx(lagged.sensor.stroke_lag, rel=0.3)
+    clipped = _case(1055, faults=('clipping',))
+    rec = vehicle_data.build('case', clipped.columns)
+    (clip,) = [f for f in rec.findings if f['finding'] == 'clipping']
+    assert clip['channel'] == 'body_acc' and not rec.mask.all()
+    rail = clipped.columns['body_acc'].max()
+    assert not rec.mask[clipped.columns['body_acc'] == rail].any()
+
+
+def _cols(n=8000):
+    t = np.arange(n) * 1e-3
+    rng = np.random.default_rng(0)
+    x = 0.01 * np.sin(2 * np.pi * 1.5 * t) + 1e-4 * rng.standard_normal(n)
+    return {'time': t, 'body_acc': 9.81 + np.sin(t), 'wheel_acc': 9.81 + np.cos(3 * t),
+            'stroke': x, 'current_command': np.full(n, 0.5)}
+
+
+@pytest.mark.parametrize('change, message', [
+    (lambda c: c.pop('wheel_acc'), 'missing column'),
+    (lambda c: c.__setitem__('body_acc', c['body_acc'] - 9.81), 'gravity already removed'),
+    (lambda c: c.__setitem__('body_acc', -c['body_acc']), 'z points down'),
+    (lambda c: c.__setitem__('stroke', c['stroke'] * 1000), 'millimetres'),
+    (lambda c: c.__setitem__('current_command', c['current_command'] * 1000), 'milliamperes'),
+    (lambda c: c['time'].__setitem__(10, 0.0), 'not increasing'),
+    (lambda c: c.__setitem__('stroke', np.zeros(8000)), 'hardly moves'),
+    (lambda c: c['body_acc'].__setitem__(slice(0, 200), np.nan), 'NaN'),
+])
+def test_bad_inputs_are_clear_errors(change, message):
+    cols = _cols()
+    change(cols)
+    with pytest.raises(DataError, match=message):
+        vehicle_data.build('bad', cols)
+
+
+def test_short_or_missing_files(tmp_path):
+    with pytest.raises(DataError, match='need at least'):
+        vehicle_data.build('short', {k: v[:500] for k, v in _cols().items()})
+    with pytest.raises(DataError, match='no such file'):
+        vehicle_data.load([tmp_path / 'nope.csv'])
+    (tmp_path / 'empty.csv').write_text('')
+    with pytest.raises(DataError, match='empty file'):
+        vehicle_data.load([tmp_path / 'empty.csv'])
+
+
+def _write_bag(path, cols, namespaces):
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import get_typestore, Stores
+
+    ts = get_typestore(Stores.LATEST)
+    imu, js = ts.types['sensor_msgs/msg/Imu'], ts.types['sensor_msgs/msg/JointState']
+    f64, hdr = ts.types['std_msgs/msg/Float64'], ts.types['std_msgs/msg/Header']
+    stamp_t, vec = ts.types['builtin_interfaces/msg/Time'], ts.types['geometry_msgs/msg/Vector3']
+    quat = ts.types['geometry_msgs/msg/Quaternion']
+    cov = np.zeros(9)
+    with Writer(path, version=9) as w:
+        conns = {}
+        for ns in namespaces:
+            for name, ty in (('imu/body', imu), ('imu/wheel', imu), ('stroke', js),
+                             ('current_command', f64), ('coil_current', f64)):
+                conns[f'{ns}/{name}'] = w.add_connection(f'{ns}/{name}', ty.__msgtype__,
+                                                         typestore=ts)
+        for k in range(cols['time'].size):
+            ns_t = int(1e9 + cols['time'][k] * 1e9)
+            h = hdr(stamp=stamp_t(sec=ns_t // 10 ** 9, nanosec=ns_t % 10 ** 9), frame_id='b')
+            for ns in namespaces:
+                def acc(a):
+                    return imu(header=h, orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0),
+                               orientation_covariance=cov, angular_velocity=vec(x=0.0, y=0.0,
+                                                                                z=0.0),
+                               angular_velocity_covariance=cov,
+                               linear_acceleration=vec(x=0.0, y=0.0, z=float(a)),
+                               linear_acceleration_covariance=cov)
+                msgs = ((f'{ns}/imu/body', acc(cols['body_acc'][k]), imu),
+                        (f'{ns}/imu/wheel', acc(cols['wheel_acc'][k]), imu),
+                        (f'{ns}/stroke', js(header=h, name=['suspension_stroke'],
+                                            position=np.array([cols['stroke'][k]]),
+                                            velocity=np.array([]), effort=np.array([])), js),
+                        (f'{ns}/current_command', f64(data=float(cols['current_command'][k])),
+                         f64),
+                        (f'{ns}/coil_current', f64(data=float(cols['coil_current'][k])), f64))
+                for name, msg, ty in msgs:
+                    w.write(conns[name], ns_t, ts.serialize_cdr(msg, ty.__msgtype__))
+
+
+def test_bag_gives_the_csv_result(tmp_path):
+    case = truth.make_vehicle_case(1007, effects=('current_lag',), duration=12.0)
+    csv = case.write_csv(tmp_path / 'car.csv')
+    bag = tmp_path / 'bag'
+    _write_bag(bag, case.columns, ['/front_left', '/rear_right'])
+    with pytest.raises(DataError, match='--namespace'):
+        vehicle_data.load([bag])
+    (rb,) = vehicle_data.load([bag], namespace='front_left')
+    (rc,) = vehicle_data.load([csv])
+    assert rb.n == rc.n
+    np.testing.assert_allclose(rb.body_acc, rc.body_acc, atol=1e-6)
+    np.testing.assert_allclose(rb.stroke_rate, rc.stroke_rate, atol=1e-6)
+    rep_b, res_b = vehicle.diagnose_vehicle([bag], tmp_path / 'ob', NOMINAL,
+                                            namespace='front_left', make_plots=False)
+    rep_c, res_c = vehicle.diagnose_vehicle([csv], tmp_path / 'oc', NOMINAL, make_plots=False)
+    assert res_b.causes == res_c.causes and res_b.verdict == res_c.verdict
+    assert rep_b['heldout']['extended_nrmse'] == pytest.approx(
+        rep_c['heldout']['extended_nrmse'], rel=1e-3)
