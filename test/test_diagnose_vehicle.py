@@ -116,7 +116,7 @@ def _cols(n=8000):
     (lambda c: c.__setitem__('body_acc', -c['body_acc']), 'z points down'),
     (lambda c: c.__setitem__('stroke', c['stroke'] * 1000), 'millimetres'),
     (lambda c: c.__setitem__('current_command', c['current_command'] * 1000), 'milliamperes'),
-    (lambda c: c['time'].__setitem__(10, 0.0), 'not increasing'),
+    (lambda c: c['time'].__setitem__(10, 0.0), 'not strictly increasing'),
     (lambda c: c.__setitem__('stroke', np.zeros(8000)), 'hardly moves'),
     (lambda c: c['body_acc'].__setitem__(slice(0, 200), np.nan), 'NaN'),
 ])

@@ -184,6 +184,16 @@ def strut_extra(p, x, v):
 
 
 @njit(cache=True)
+def end_stop(p, x):
+    """Linear end stops: ``(F_stop, k_stop or 0)``, ``F = k_stop (x - x_max)`` beyond rebound."""
+    if x > p[CAR_XMAX]:
+        return p[CAR_KSTOP] * (x - p[CAR_XMAX]), p[CAR_KSTOP]
+    if x < p[CAR_XMIN]:
+        return p[CAR_KSTOP] * (x - p[CAR_XMIN]), p[CAR_KSTOP]
+    return 0.0, 0.0
+
+
+@njit(cache=True)
 def plant_step(p, q, f_d, c_d, z_r, zr_dot, dt):
     """Advance the corner one step; returns (body acc, wheel acc, tyre force) over the step.
 
@@ -200,14 +210,8 @@ def plant_step(p, q, f_d, c_d, z_r, zr_dot, dt):
     ms = p[CAR_MS]
     mu = p[CAR_MU]
     x = q[ZS] - q[ZU]
-    k_x = p[CAR_KS]
-    f_stop = 0.0
-    if x > p[CAR_XMAX]:
-        f_stop = p[CAR_KSTOP] * (x - p[CAR_XMAX])
-        k_x += p[CAR_KSTOP]
-    elif x < p[CAR_XMIN]:
-        f_stop = p[CAR_KSTOP] * (x - p[CAR_XMIN])
-        k_x += p[CAR_KSTOP]
+    f_stop, k_x = end_stop(p, x)
+    k_x += p[CAR_KS]
     c = c_d
     if p[CAR_KS3] != 0.0 or p[CAR_KBS] > 0.0 or p[CAR_FFRIC] > 0.0:
         f_x, k_e, c_e = strut_extra(p, x, q[VS] - q[VU])
@@ -305,14 +309,8 @@ def plant_step_mount(p, q, f_d, c_d, z_r, zr_dot, dt):
     ctm = p[CAR_CTM]
     x = q[ZT] - q[ZU]
     v = q[VT] - q[VU]
-    k_x = p[CAR_KS]
-    f_stop = 0.0
-    if x > p[CAR_XMAX]:
-        f_stop = p[CAR_KSTOP] * (x - p[CAR_XMAX])
-        k_x += p[CAR_KSTOP]
-    elif x < p[CAR_XMIN]:
-        f_stop = p[CAR_KSTOP] * (x - p[CAR_XMIN])
-        k_x += p[CAR_KSTOP]
+    f_stop, k_x = end_stop(p, x)
+    k_x += p[CAR_KS]
     f_x, k_e, c_e = strut_extra(p, x, v)
     k_x += k_e
     c = c_d + c_e

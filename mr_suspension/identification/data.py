@@ -210,6 +210,18 @@ def _consistent_holds(cols, t, opts):
             'velocity': np.abs(vg - v) <= 0.1 * scale}
 
 
+def check_time(name, t):
+    """Return ``t`` if finite and strictly increasing, else raise a ``DataError`` (row named)."""
+    if not np.all(np.isfinite(t)):
+        raise DataError(f'{name}: time contains NaN/inf')
+    dts = np.diff(t)
+    if np.any(dts <= 0):
+        k = int(np.argmax(dts <= 0))
+        raise DataError(f'{name}: time is not strictly increasing (row {k + 1}: {t[k]} -> '
+                        f'{t[k + 1]}); sort or split the record')
+    return t
+
+
 def build_record(name, cols, opts=None, meta=None):
     """Check raw SI columns (dict canonical -> array) and return a ``Record``.
 
@@ -239,14 +251,7 @@ def build_record(name, cols, opts=None, meta=None):
             raise DataError(f'{name}: column {k} has {v.size} samples, time has {n}')
     if n < MIN_SAMPLES:
         raise DataError(f'{name}: too short ({n} samples); need at least {MIN_SAMPLES}')
-    t = cols['time']
-    if not np.all(np.isfinite(t)):
-        raise DataError(f'{name}: time contains NaN/inf')
-    dts = np.diff(t)
-    if np.any(dts <= 0):
-        k = int(np.argmax(dts <= 0))
-        raise DataError(f'{name}: time is not strictly increasing (row {k + 1}: {t[k]} -> '
-                        f'{t[k + 1]}); sort or split the record')
+    t = check_time(name, cols['time'])
     t = _time_units(name, t, opts)
     if t[-1] - t[0] < MIN_DURATION:
         raise DataError(f'{name}: too short ({t[-1] - t[0]:.3f} s); need >= {MIN_DURATION} s')

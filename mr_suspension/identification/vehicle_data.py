@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 
 from mr_suspension.identification import sensors
-from mr_suspension.identification.data import DataError
+from mr_suspension.identification.data import check_time, DataError
 
 G = 9.81
 REQUIRED = ('time', 'body_acc', 'wheel_acc', 'stroke', 'current_command')
@@ -253,13 +253,8 @@ def build(name, cols):
     t = np.asarray(cols['time'], dtype=float)
     if t.size < MIN_SAMPLES:
         raise DataError(f'{name}: {t.size} samples, need at least {MIN_SAMPLES}')
-    if not np.all(np.isfinite(t)):
-        raise DataError(f'{name}: time has NaN/inf values')
+    check_time(name, t)
     steps = np.diff(t)
-    if np.any(steps <= 0):
-        k = int(np.argmax(steps <= 0))
-        raise DataError(f'{name}: time is not increasing at row {k + 2} ({t[k]:g} -> '
-                        f'{t[k + 1]:g})')
     dt = float(np.median(steps))
     if t[-1] - t[0] < MIN_DURATION:
         raise DataError(f'{name}: {t[-1] - t[0]:.2f} s of data, need at least '
