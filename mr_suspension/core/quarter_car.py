@@ -194,6 +194,27 @@ def end_stop(p, x):
 
 
 @njit(cache=True)
+def tyre(p, q, z_r, zr_dot):
+    """Tyre force ``(F_t,lin, F_t, k_t, c_t)``; the tyre cannot pull (0 and no stiffness then).
+
+    ``F_t,lin = (m_s + m_u) g + k_t (z_r - z_u) + c_t (z_r' - z_u')`` (seed 003 eq. 4.4).
+    """
+    f_t_lin = ((p[CAR_MS] + p[CAR_MU]) * p[CAR_G] + p[CAR_KT] * (z_r - q[ZU])
+               + p[CAR_CT] * (zr_dot - q[VU]))
+    if f_t_lin > 0.0:
+        return f_t_lin, f_t_lin, p[CAR_KT], p[CAR_CT]
+    return f_t_lin, 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
+def tyre_mid(f_t_lin, kt, ct, v_u, dv_u, h):
+    """Tyre force at mid-step, consistent with the trapezoidal update, clamped at lift-off."""
+    if kt > 0.0:
+        return max(f_t_lin - kt * h * (0.5 * v_u + 0.25 * dv_u) - 0.5 * ct * dv_u, 0.0)
+    return 0.0
+
+
+@njit(cache=True)
 def plant_step(p, q, f_d, c_d, z_r, zr_dot, dt):
     """Advance the corner one step; returns (body acc, wheel acc, tyre force) over the step.
 
@@ -219,14 +240,7 @@ def plant_step(p, q, f_d, c_d, z_r, zr_dot, dt):
         k_x += k_e
         c += c_e
     s_force = ms * p[CAR_G] + p[CAR_FD0] - p[CAR_KS] * x - f_d - f_stop
-    f_t_lin = (ms + mu) * p[CAR_G] + p[CAR_KT] * (z_r - q[ZU]) + p[CAR_CT] * (zr_dot - q[VU])
-    kt = 0.0
-    ct = 0.0
-    f_t = 0.0
-    if f_t_lin > 0.0:
-        f_t = f_t_lin
-        kt = p[CAR_KT]
-        ct = p[CAR_CT]
+    f_t_lin, f_t, kt, ct = tyre(p, q, z_r, zr_dot)
     a_s = (s_force - ms * p[CAR_G]) / ms
     a_u = (f_t - s_force - mu * p[CAR_G]) / mu
     # Jacobians of (a_s, a_u) w.r.t. (z_s, z_u) and (v_s, v_u).
@@ -248,12 +262,7 @@ def plant_step(p, q, f_d, c_d, z_r, zr_dot, dt):
     det = a11 * a22 - a12 * a21
     dv_s = (r1 * a22 - a12 * r2) / det
     dv_u = (a11 * r2 - a21 * r1) / det
-    # Tyre force at mid-step (consistent with the trapezoidal update), clamped at lift-off.
-    f_t_mid = 0.0
-    if kt > 0.0:
-        f_t_mid = f_t_lin - kt * h * (0.5 * q[VU] + 0.25 * dv_u) - 0.5 * ct * dv_u
-        if f_t_mid < 0.0:
-            f_t_mid = 0.0
+    f_t_mid = tyre_mid(f_t_lin, kt, ct, q[VU], dv_u, h)
     q[ZS] += h * (q[VS] + 0.5 * dv_s)
     q[ZU] += h * (q[VU] + 0.5 * dv_u)
     q[VS] += dv_s
@@ -316,14 +325,7 @@ def plant_step_mount(p, q, f_d, c_d, z_r, zr_dot, dt):
     c = c_d + c_e
     s_force = ms * g + p[CAR_FD0] - p[CAR_KS] * x - f_d - f_stop - f_x
     m_dyn = ktm * (q[ZT] - q[ZS]) + ctm * (q[VT] - q[VS])
-    f_t_lin = (ms + mu) * g + p[CAR_KT] * (z_r - q[ZU]) + p[CAR_CT] * (zr_dot - q[VU])
-    kt = 0.0
-    ct = 0.0
-    f_t = 0.0
-    if f_t_lin > 0.0:
-        f_t = f_t_lin
-        kt = p[CAR_KT]
-        ct = p[CAR_CT]
+    f_t_lin, f_t, kt, ct = tyre(p, q, z_r, zr_dot)
     a = np.empty(3)
     a[0] = m_dyn / mb
     a[1] = (s_force - mb * g - m_dyn - mt * g) / mt
@@ -350,11 +352,7 @@ def plant_step_mount(p, q, f_d, c_d, z_r, zr_dot, dt):
     lhs = np.eye(3) - 0.5 * h * jv - 0.25 * h * h * jz
     rhs = h * (a + 0.5 * h * (jz @ vel))
     dv = _solve3(lhs, rhs)
-    f_t_mid = 0.0
-    if kt > 0.0:
-        f_t_mid = f_t_lin - kt * h * (0.5 * q[VU] + 0.25 * dv[2]) - 0.5 * ct * dv[2]
-        if f_t_mid < 0.0:
-            f_t_mid = 0.0
+    f_t_mid = tyre_mid(f_t_lin, kt, ct, q[VU], dv[2], h)
     q[ZS] += h * (q[VS] + 0.5 * dv[0])
     q[ZT] += h * (q[VT] + 0.5 * dv[1])
     q[ZU] += h * (q[VU] + 0.5 * dv[2])
