@@ -241,12 +241,14 @@ def identify_driver(records, nominal=None):
     return out
 
 
-def _compatible(effects, e):
+def compatible(effects, e, exclusive=EXCLUSIVE):
+    """Return True if ``e`` may join ``effects`` (no two of one ``exclusive`` set)."""
     s = set(effects) | {e}
-    return not any(len(s & ex) > 1 for ex in EXCLUSIVE)
+    return not any(len(s & ex) > 1 for ex in exclusive)
 
 
-def _corr(a, b):
+def corr(a, b):
+    """Correlation of two contributions (0 when either is constant)."""
     sa, sb = np.std(a), np.std(b)
     if sa == 0 or sb == 0:
         return 0.0
@@ -298,9 +300,9 @@ def _choose(cands, parent_test, parent_pred):
         if pair in NESTED:
             best = pair[0] if best in pair else best
             continue
-        corr = _corr(cands[best].prediction - parent_pred, cands[other].prediction - parent_pred)
-        stats[other]['corr_with_best'] = corr
-        if corr >= CORR_AMBIG:
+        r = corr(cands[best].prediction - parent_pred, cands[other].prediction - parent_pred)
+        stats[other]['corr_with_best'] = r
+        if r >= CORR_AMBIG:
             ambiguous.append(pair)
     return best, ambiguous, stats
 
@@ -347,7 +349,7 @@ def _children(ds, chosen, candidates, current, tick):
                                   fixed=SCREEN_FIXED)
 
     pool = _parallel({e: ('+'.join(list(chosen) + [e]), child(e)) for e in candidates
-                      if e not in chosen and _compatible(chosen, e)}, tick)
+                      if e not in chosen and compatible(chosen, e)}, tick)
     # Screening done with one sweep; the two most promising children get a second one.
 
     def again(f):
@@ -651,7 +653,7 @@ def _swaps(ds, chosen, fits, singles, stage_amb, tick):
         b = pair[0] if pair[1] == a else pair[1]
         alt_set = tuple(b if c == a else c for c in chosen)
         if len(set(alt_set)) < len(alt_set) or not all(
-                _compatible([c for c in alt_set if c != x], x) for x in alt_set):
+                compatible([c for c in alt_set if c != x], x) for x in alt_set):
             continue
         cur = fits[tuple(chosen)]
         alt = engine.fit(ds, alt_set, start_eta=cur.eta, start_theta=cur.theta, new=(b,))
@@ -668,7 +670,7 @@ def _swaps(ds, chosen, fits, singles, stage_amb, tick):
         # from the runner-up's own fit and searched jointly.
         union = tuple(chosen) + (b,)
         n_phys = len([c for c in chosen if c not in engine.SENSOR_EFFECTS])
-        if n_phys < MAX_CAUSES and _compatible(chosen, b) and b in singles:
+        if n_phys < MAX_CAUSES and compatible(chosen, b) and b in singles:
             eta = dict(cur.eta)
             for n in engine.EFFECT_PARAMS[b]:
                 eta[n] = singles[b].eta[n]
@@ -745,7 +747,7 @@ def _fine_timing(ds, final, chosen, allowed, tick):
         steps.append(step)
     if len([c for c in chosen if c not in engine.SENSOR_EFFECTS]) >= MAX_CAUSES:
         return final, chosen, steps
-    cands = [e for e in FINE if e in allowed and e not in chosen and _compatible(chosen, e)]
+    cands = [e for e in FINE if e in allowed and e not in chosen and compatible(chosen, e)]
     if not cands:
         return final, chosen, steps
     final, chosen, step = _fine_stage(ds, final, chosen, cands, tick, 'fine timing (full rate)')

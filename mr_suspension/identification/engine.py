@@ -324,7 +324,7 @@ def design(ds, effects, eta, theta_prev):
     return np.vstack(cols)
 
 
-def _solve(g, h):
+def solve_normal(g, h):
     """Solve ``g theta = h`` (stacked over a leading axis), equilibrated and regularised."""
     d = np.sqrt(np.maximum(np.diagonal(g, axis1=-2, axis2=-1), 1e-300))
     gs = g / d[..., :, None] / d[..., None, :]
@@ -371,7 +371,7 @@ def _passive(gs, hs, th, i_max):
         free = [j for j in range(p) if dg[j] > 1e-12 * dg.max()]  # an empty column stays 0
         for _ in range(5):
             z = np.zeros(p)
-            z[free] = _solve(g[np.ix_(free, free)], h[free])
+            z[free] = solve_normal(g[np.ix_(free, free)], h[free])
             neg = [j for j in (1, 2, 3, 4) if j in free and z[j] < 0]
             if not neg:
                 break
@@ -416,7 +416,7 @@ class CVResult:
         # All data and the K training sets (all but fold k) in one batched solve.
         gs = np.concatenate([gt[None], gt[None] - gk])
         hs = np.concatenate([ht[None], ht[None] - hk])
-        th = _passive(gs, hs, _solve(gs, hs), ds.i_max)
+        th = _passive(gs, hs, solve_normal(gs, hs), ds.i_max)
         self.theta = th[0]
         self.sse = float(et - 2 * self.theta @ ht + self.theta @ gt @ self.theta)
         self.n = nk

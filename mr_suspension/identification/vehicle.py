@@ -377,12 +377,6 @@ class CV:
     theta: np.ndarray
 
 
-def _solve(g, h):
-    d = np.sqrt(np.maximum(np.diag(g), 1e-300))
-    gs = g / np.outer(d, d) + 1e-10 * np.eye(g.shape[0])
-    return np.linalg.solve(gs, h / d) / d
-
-
 def cv(X, y, fold, rows):
     """Blocked K-fold cross-validation of ``y ~ X theta`` on ``rows`` (inner folds only)."""
     if not np.all(np.isfinite(X[rows])):
@@ -397,10 +391,10 @@ def cv(X, y, fold, rows):
     test, train = np.empty(N_FOLDS), np.empty(N_FOLDS)
     for f in range(N_FOLDS):
         g, h, e = gt - gk[f], ht - hk[f], et - ek[f]
-        th = _solve(g, h)
+        th = engine.solve_normal(g, h)
         train[f] = e - 2 * th @ h + th @ g @ th
         test[f] = ek[f] - 2 * th @ hk[f] + th @ gk[f] @ th
-    return CV(test, train, _solve(gt, ht))
+    return CV(test, train, engine.solve_normal(gt, ht))
 
 
 @dataclass
@@ -728,15 +722,6 @@ def testability(P):
 
 # -- selection ---------------------------------------------------------------------------------
 
-def _compatible(effects, e):
-    return all(not (e in s and set(effects) & (s - {e})) for s in EXCLUSIVE)
-
-
-def _corr(a, b):
-    sa, sb = np.std(a), np.std(b)
-    return float(np.corrcoef(a, b)[0, 1]) if sa > 0 and sb > 0 else 0.0
-
-
 def _without(P, fit, e, rows):
     effects = tuple(x for x in fit.effects if x != e)
     return evaluate(P, effects, fit.eta, rows)
@@ -794,7 +779,7 @@ def select(P, effects, untestable, progress=None):
                 steps[-1]['accepted'] = False
     while len([e for e in parent.effects if e in PHYSICS]) < MAX_CAUSES:
         cands = [e for e in PHYSICS if e in effects and e not in parent.effects
-                 and e not in untestable and _compatible(parent.effects, e)]
+                 and e not in untestable and diagnose.compatible(parent.effects, e, EXCLUSIVE)]
         if not cands:
             break
         kids = {}
@@ -821,7 +806,7 @@ def select(P, effects, untestable, progress=None):
         cb = predict(P, kids[best])[rows] - pred_parent
         for other in acc[1:]:
             co = predict(P, kids[other])[rows] - pred_parent
-            if abs(_corr(cb, co)) >= diagnose.CORR_AMBIG and not diagnose.accepted(
+            if abs(diagnose.corr(cb, co)) >= diagnose.CORR_AMBIG and not diagnose.accepted(
                     kids[best].test, kids[other].test):
                 ambiguous.append((best, other))
         parent = refine(P, kids[best], rows, ('v_y',))
