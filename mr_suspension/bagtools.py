@@ -12,8 +12,8 @@ counterpart of ``ros2 bag reindex``) stream-reads every complete record of such 
 torn tail, writes a well-formed MCAP in its place (the original is kept as ``<name>.orig``) and
 rebuilds ``metadata.yaml`` from the messages; it also rebuilds a missing, empty or corrupt
 ``metadata.yaml`` of a healthy MCAP or sqlite3 bag and folds a sqlite3 write-ahead log into its
-database. Repairing a repaired bag changes nothing. No rclpy here: the recorder node uses the
-writer, the command line the repair.
+database. Repairing a repaired bag changes nothing. No ROS client library here: the recorder
+node uses the writer, the command line the repair.
 """
 
 import os

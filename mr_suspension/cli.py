@@ -282,7 +282,7 @@ def build_parser():
             if exc.name != name:
                 _unavailable(sub, name, exc)
             continue
-        except ImportError as exc:  # e.g. rclpy present but its C libraries are not found
+        except ImportError as exc:  # e.g. the ROS client library but not its C libraries
             _unavailable(sub, name, exc)
             continue
         module.register(sub)

@@ -4,7 +4,7 @@ A record is one corner on a uniform time base (the body IMU's): ``body_acc`` and
 ``wheel_acc`` with gravity removed (the IMUs report the specific force, +9.81 m/s^2 at rest,
 z up), ``stroke`` [m] (+ = extension), its rate from a zero-phase differentiator,
 ``current_command`` [A], optional ``coil_current`` [A] and ``road`` [m] (a rig's shaker).
-Pure numerics apart from reading bags through rosbags; no rclpy.
+Pure numerics apart from reading bags through rosbags; no ROS client library.
 """
 
 from dataclasses import dataclass, field
