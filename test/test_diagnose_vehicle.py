@@ -222,3 +222,48 @@ def test_node_set_bag_with_a_hidden_cubic_spring(tmp_path):
     assert [c['effect'] for c in rep['causes']][:1] == ['spring_nonlinearity'], rep['causes']
     fitted = cfgmod.load_vehicle(str(out / 'vehicle.yaml'))
     assert fitted.k_s3 == pytest.approx(2.0e7, rel=0.10)
+
+
+def test_fused_rate_holds_at_the_record_ends():
+    """Stroke + IMU fusion (Kalman/RTS smoother) on a closed-form motion that ends moving.
+
+    A periodic extension of the record (the former frequency-domain fusion) put a velocity
+    jump at the end and errors of 10x the interior over the last seconds.
+    """
+    dt, n = 1e-3, 20001
+    t = np.arange(n) * dt
+    rng = np.random.default_rng(5)
+    comps = [(0.01, 0.7, 0.3), (0.004, 1.9, 1.1), (0.002, 4.3, 2.0), (3e-4, 13.0, 0.4)]
+    x = sum(a * np.sin(2 * np.pi * f * t + p) for a, f, p in comps)
+    v = sum(a * 2 * np.pi * f * np.cos(2 * np.pi * f * t + p) for a, f, p in comps)
+    acc = -sum(a * (2 * np.pi * f) ** 2 * np.sin(2 * np.pi * f * t + p) for a, f, p in comps)
+    assert abs(v[-1]) > 0.02  # the record ends in motion
+    xm = x + rng.normal(0.0, 3e-4, n)
+    am = acc + rng.normal(0.0, 0.03, n) + 0.05  # white noise and a bias
+    fc = vehicle_data.crossover(xm, am, dt)
+    xf, vf = vehicle_data.fuse(xm, am, dt, fc, 0.45 / dt)
+    e = vf - v
+    inner = float(np.std(e[3000:-3000]))
+    assert inner < 2e-3
+    for end in (e[:1000], e[-1000:]):
+        assert float(np.sqrt(np.mean(end ** 2))) < 2.0 * inner
+    assert float(np.std(xf - x)) < 3e-4  # the fused stroke is no noisier than the sensor
+
+
+def test_nominal_end_stops_are_known_not_a_finding():
+    """A bump that drives the stroke past the nominal end stops: no cause.
+
+    The stops are in the prediction (a known term of the nominal corner, not fitted).
+    """
+    case = _case(1031, bump=0.16, road_class='B')
+    x = case.clean['stroke']
+    lim = NOMINAL.vehicle
+    assert np.any(x > lim.stroke_max) or np.any(x < lim.stroke_min)
+    rec = vehicle_data.build('case', case.columns)
+    res, P, _ = vehicle.run([rec], NOMINAL)
+    # Without the known stops the stop hits stay unexplained (partly_explained).
+    assert res.causes == [] and res.verdict == 'none'
+    beyond = np.concatenate(P.x) > lim.stroke_max
+    expect = -lim.k_stop * (np.concatenate(P.x) - lim.stroke_max) / lim.m_s
+    assert np.allclose(P.known[beyond], expect[beyond]) and np.all(P.known[np.abs(
+        np.concatenate(P.x)) < 0.9 * lim.stroke_max] == 0.0)

@@ -117,3 +117,46 @@ def test_truth_effects_agree_with_core_options(truth_kw, core_kw):
     plain = simulate(base, road)
     assert _rms(truth['body_acc']) == pytest.approx(_rms(core.a_s), rel=0.04)
     assert abs(_rms(core.a_s) / _rms(plain.a_s) - 1.0) > 0.01  # the option matters
+
+
+@pytest.mark.parametrize('effects', [(), ('strut_friction', 'bump_stop'),
+                                     ('current_saturation', 'direction_asymmetry')])
+def test_truth_fed_its_own_motion_gives_its_body_acceleration(effects):
+    """The truth as a predictor (its strut law on a given motion) closes on the true motion."""
+    case = V.make_vehicle_case(21, effects=effects, duration=6.0, strength=0.8)
+    a = V.body_acc_from_inputs(case, case.clean['stroke'], case.clean['stroke_rate'])
+    ref = case.clean['body_acc'] + case.truth.g
+    # RK4 within samples on linearly interpolated motion vs the truth's own state: the Dahl
+    # bristle state is the only path-dependent part.
+    assert _rms(a - ref) < 2e-3 * _rms(case.clean['body_acc'])
+
+
+def test_truth_predictor_with_a_top_mount_integrates_the_mount():
+    """With a mount the given rate is the body-wheel rate; the mount's motion is integrated."""
+    case = V.make_vehicle_case(22, effects=('top_mount',), duration=6.0, strength=0.8)
+    dt = 1e-3
+    zs, zu = case.clean['z_s'], case.clean['z_u']
+    v_bw = np.gradient(zs - zu, dt)
+    a = V.body_acc_from_inputs(case, case.clean['stroke'], v_bw)
+    ref = case.clean['body_acc'] + case.truth.g
+    assert _rms(a - ref) < 0.05 * _rms(case.clean['body_acc'])
+    # Without the mount dynamics (the strut's rate as the body's) the error is far larger.
+    flat = V.body_acc_from_inputs(replace(case, truth=replace(case.truth, k_tm=0.0, c_tm=0.0)),
+                                  case.clean['stroke'], case.clean['stroke_rate'])
+    assert _rms(flat - ref) > 3 * _rms(a - ref)
+
+
+def test_truth_predictor_bad_input():
+    case = V.make_vehicle_case(23, duration=2.0)
+    with pytest.raises(ValueError, match='one value per sample'):
+        V.body_acc_from_inputs(case, case.clean['stroke'][:-1], case.clean['stroke_rate'])
+
+
+def test_truth_predictor_starts_at_the_loaded_equilibrium():
+    """A heavier body on a top mount: the predictor starts at rest at the sagged mount."""
+    case = V.make_vehicle_case(24, effects=('top_mount', 'sprung_mass'), duration=2.0,
+                               strength=0.9)
+    still = np.zeros(case.clean['stroke'].size)
+    a = V.body_acc_from_inputs(replace(case, clean=dict(case.clean, field_current=still)),
+                               still + case.clean['stroke'][0], still)
+    assert np.max(np.abs(a - case.truth.g)) < 1e-9 * case.truth.g + 1e-9

@@ -25,7 +25,7 @@ import time
 
 from numba import njit
 import numpy as np
-from scipy import signal
+from scipy import optimize, signal
 
 from mr_suspension.identification import diagnose, engine, sensors, vehicle_data
 from mr_suspension.identification.data import DataError
@@ -160,6 +160,13 @@ class Prepared:
             labels.append(engine.fold_labels(r, N_FOLDS, GAP, BLOCKS_PER_FOLD, True))
         self.fold = np.concatenate(labels)
         self.y_all = np.concatenate(self.y)
+        veh = nominal.vehicle
+        xa = np.concatenate(self.x)
+        # The nominal end stops are part of the nominal corner: a known term, not fitted
+        # (``F = k_stop (x - x_max)`` beyond rebound, ``(x - x_min)`` beyond bump; per nominal
+        # m_s). A rougher unseen road reaches them where the fit's record did not.
+        stop = np.maximum(xa - veh.stroke_max, 0.0) + np.minimum(xa - veh.stroke_min, 0.0)
+        self.known = -veh.k_stop * stop / veh.m_s
         self.n = start
         q = max(1, int(round(1.0 / (SEARCH_RATE * self.dt))))
         sel = np.zeros(self.n, dtype=bool)
@@ -226,6 +233,16 @@ def _field(u, dt, effects, eta):
     return y
 
 
+def driver_coil(cmd, dt, dead, tau_rise, tau_fall):
+    """Coil current of the driver model from the command.
+
+    Lag (rise/fall), then a fractional dead time (a held command: + half a sample).
+    """
+    y = engine.field_current(np.clip(cmd, 0.0, None), dt, 0.0, tau_rise, tau_fall)
+    k = np.arange(y.size)
+    return np.interp(k - dead / dt, k, y)
+
+
 def driver_check(P):
     """With a measured coil current: command -> coil against the nominal driver.
 
@@ -235,7 +252,7 @@ def driver_check(P):
     rule. Returns ``(causes, steps, fitted (dead, rise, fall))``.
     """
     d = P.nominal.driver
-    cmd = [np.clip(r.current_command, 0.0, None) for r in P.records]
+    cmd = [r.current_command for r in P.records]
     coil = np.concatenate([r.coil_current for r in P.records])
     rows = P.full_rows
 
@@ -243,12 +260,7 @@ def driver_check(P):
                                for r in P.records]))
 
     def predict_coil(dead, tr, tf):
-        out = []
-        for c in cmd:  # lag, then a fractional dead time (a held command: + half a sample)
-            y = engine.field_current(c, P.dt, 0.0, tr, tf)
-            k = np.arange(y.size)
-            out.append(np.interp(k - dead / P.dt, k, y))
-        return np.concatenate(out)
+        return np.concatenate([driver_coil(c, P.dt, dead, tr, tf) for c in cmd])
 
     def sse(dead, tr, tf):
         e2 = (coil - predict_coil(dead, tr, tf)) ** 2
@@ -416,7 +428,7 @@ class Fit:
 def evaluate(P, effects, eta, rows):
     """Cross-validate one model at fixed ``eta``."""
     X, names = columns(P, effects, eta)
-    r = cv(X, P.y_all, P.fold, rows)
+    r = cv(X, P.y_all - P.known, P.fold, rows)
     return Fit(tuple(effects), dict(eta), r.theta, names, r)
 
 
@@ -465,10 +477,52 @@ def refine(P, fit, rows, names=('v_y',)):
     return fit
 
 
+LINEAR_ETA = {'rho': 0.05, 'imu_timing': 5e-4}  # searched on a linear scale (step), others log
+
+
+def polish(P, fit, rows):
+    """Polish all nonlinear parameters of ``fit`` jointly.
+
+    Variable projection (``theta`` by least squares inside): Nelder-Mead on the training error
+    of ``rows``, log scale for the positive time constants and levels (sign kept), linear for
+    ``rho`` and the IMU timing. Ends the
+    coordinate sweeps of :func:`refine`, which leave a shape mismatch (a truth's stop or
+    saturation that is not the catalogue's) half fitted.
+    """
+    keys = [k for k in fit.eta if k != 'chain']
+    if not keys:
+        return fit
+    sign = {k: math.copysign(1.0, fit.eta[k]) for k in keys}
+    best = [fit, float(fit.cvr.train.sum())]
+
+    def eta_of(z):
+        eta = dict(fit.eta)
+        for k, v in zip(keys, z):
+            eta[k] = float(fit.eta[k] + v * LINEAR_ETA[k]) if k in LINEAR_ETA \
+                else float(sign[k] * abs(fit.eta[k]) * math.exp(v))
+        return eta
+
+    def cost(z):
+        if np.max(np.abs(z)) > 4.0:  # beyond e^4 (or 4 steps): outside any grid, refuse
+            return np.inf
+        f = evaluate(P, fit.effects, eta_of(z), rows)
+        e = float(f.cvr.train.sum())
+        if e < best[1]:
+            best[:] = [f, e]
+        return e
+
+    d = len(keys)
+    simplex = np.vstack([np.zeros(d), 0.3 * np.eye(d)])
+    optimize.minimize(cost, np.zeros(d), method='Nelder-Mead',
+                      options={'initial_simplex': simplex, 'maxfev': 25 * (d + 1),
+                               'xatol': 0.01, 'fatol': 1e-5 * best[1]})
+    return best[0]
+
+
 def predict(P, fit, rows=None):
     """Predicted body acceleration (gravity removed) at every sample."""
     X, _ = columns(P, fit.effects, fit.eta)
-    return X @ fit.theta
+    return X @ fit.theta + P.known
 
 
 # -- the road path: sprung mass and tyre from the wheel equation -----------------------------
@@ -830,9 +884,11 @@ def select(P, effects, untestable, progress=None):
         steps.append(_step('current_lag->current_lag_asymmetric', up, parent, 'upgrade'))
         if diagnose.accepted(up.test, parent.test):
             parent = up
-    # Final polish of every nonlinear parameter (one coordinate sweep, training error).
+    # Final polish of every nonlinear parameter (a coordinate sweep, then a joint
+    # Nelder-Mead; training error).
     keys = [k for k in parent.eta if k not in ('chain',)]
     parent = refine(P, parent, P.full_rows, ['v_y'] + [k for k in keys if k != 'v_y'])
+    parent = polish(P, parent, P.full_rows)
     parent.cvr = evaluate(P, parent.effects, parent.eta, rows).cvr
     ambiguous = [p for p in ambiguous if p[0] in parent.effects]
     return base, parent, steps, ambiguous
@@ -849,11 +905,12 @@ def _drop_losses(P, final, rows):
 def outer_nrmse(P, fit):
     """Refit ``theta`` on all inner rows at full rate, score on the outer blocks."""
     X, _ = columns(P, fit.effects, fit.eta)
-    r = cv(X, P.y_all, P.fold, P.full_rows)
+    r = cv(X, P.y_all - P.known, P.fold, P.full_rows)
     fit = replace(fit, theta=r.theta, cvr=r)
-    e = P.y_all - X @ fit.theta
+    pred = X @ fit.theta + P.known
+    e = P.y_all - pred
     o = P.outer
-    return fit, float(np.sqrt(np.mean(e[o] ** 2)) / np.std(P.y_all[o])), X @ fit.theta
+    return fit, float(np.sqrt(np.mean(e[o] ** 2)) / np.std(P.y_all[o])), pred
 
 
 def ride_metrics(P, a_pred):
@@ -998,7 +1055,8 @@ def run(records, nominal=None, effects=ALL_EFFECTS, progress=None):
              'sprung_mass': ('from the wheel equation (road given)' if road else
                              'not identifiable without a force scale: nominal m_s kept, the '
                              'strut force is fitted per unit sprung mass'),
-             'drop_loss': drop, 'driver_causes': driver_causes}
+             'drop_loss': drop, 'driver_causes': driver_causes,
+             'driver_fit': list(P.driver_fit) if P.driver_fit else None}
     if road is None:
         notes['accelerometer_scale'] = ('untestable: a scale error of the body IMU is the '
                                         'same as a different sprung mass; a flip test (+-1 g) '
@@ -1295,8 +1353,7 @@ def predict_records(res, records, nominal):
     P = Prepared(records, nominal)
     out = []
     for fit in (res.base, res.final):
-        X, _ = columns(P, fit.effects, fit.eta)
-        out.append(X @ fit.theta)
+        out.append(predict(P, fit))
     y = P.y_all
     nrmse = [float(np.sqrt(np.mean((y - p - np.mean(y - p)) ** 2)) / np.std(y)) for p in out]
     return (y, out[0], out[1]), {'baseline_nrmse': nrmse[0], 'extended_nrmse': nrmse[1]}

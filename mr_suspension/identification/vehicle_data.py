@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 import warnings
 
+from numba import njit
 import numpy as np
 
 from mr_suspension.identification import sensors
@@ -378,28 +379,75 @@ def crossover(x, a_rel, dt):
 def fuse(x, a_rel, dt, fc, cut, tau=0.0):
     """Stroke and stroke rate fused from the stroke sensor (below ``fc``) and the IMUs (above).
 
-    Zero-phase complementary weights ``W = 1 / (1 + (f/fc)^4)`` in the frequency domain
-    (reflected record, no edge jump): ``V = W j w X + (1 - W) A / (j w)``,
-    ``X_f = W X - (1 - W) A / w^2``, with ``A`` the relative acceleration body - wheel; then the
-    zero-phase low-pass at ``cut``. ``tau``: the stroke sensor's lag, inverted as
-    ``X (1 + j w tau)``.
+    The Wiener smoother of the double integrator ``x'' = a_rel`` (relative acceleration body -
+    wheel, mean removed) with the stroke as measurement: in the interior its weights are the
+    complementary ``W = 1 / (1 + (f/fc)^4)`` on the stroke and ``1 - W`` on the IMUs
+    (``V = W j w X + (1 - W) A / (j w)``), because the acceleration-noise to stroke-noise ratio
+    is set to ``q / r = (2 pi fc)^4`` (``fc`` from :func:`crossover`). It runs as a Kalman
+    filter and Rauch-Tung-Striebel smoother (:func:`_rts`), so the record's ends need no
+    periodic extension (a reflected record put a velocity jump at the end: errors of 10x the
+    interior over the last seconds). Then the zero-phase low-pass at ``cut``. ``tau``: the
+    stroke sensor's lag, inverted as ``x + tau x'``.
     """
-    n = x.size
-    xe = np.concatenate((x, x[::-1]))
-    ae = np.concatenate((a_rel - a_rel.mean(), (a_rel - a_rel.mean())[::-1]))
-    f = np.fft.rfftfreq(2 * n, dt)
-    w = 2 * math.pi * f
-    W = 1.0 / (1.0 + (f / fc) ** 4)
-    jw = 1j * w
-    X, A = np.fft.rfft(xe) * (1.0 + jw * tau), np.fft.rfft(ae)
-    inv = np.zeros_like(jw)
-    inv[1:] = 1.0 / jw[1:]
-    V = W * jw * X + (1.0 - W) * A * inv
-    Xf = W * X + (1.0 - W) * A * inv * inv
-    lp = 1.0 / (1.0 + (f / cut) ** 8)  # zero-phase, as a 4th-order Butterworth run twice
-    v = np.fft.irfft(V * lp, 2 * n)[:n]
-    xf = np.fft.irfft(Xf, 2 * n)[:n]
-    return xf, v
+    xs = np.asarray(x, dtype=float)
+    if tau > 0.0:
+        xs = xs + tau * np.gradient(xs, dt)
+    a = np.asarray(a_rel, dtype=float)
+    s = _rts(np.ascontiguousarray(xs), np.ascontiguousarray(a - a.mean()), float(dt),
+             (2.0 * math.pi * fc) ** 4)
+    return s[:, 0].copy(), sensors.lowpass(s[:, 1].copy(), dt, cut, order=4)
+
+
+@njit(cache=True, nogil=True)
+def _rts(z, a, dt, q):
+    """Kalman filter + RTS smoother of ``[x, v]``; returns the smoothed ``(n, 2)``.
+
+    ``x_k+1 = x_k + dt v_k + dt^2/2 a``, ``v_k+1 = v_k + dt a`` (``a`` the trapezoidal mean),
+    acceleration noise ``q``, measurement ``z`` of ``x`` with unit noise (Rauch, Tung and
+    Striebel 1965).
+    """
+    n = z.size
+    xf = np.empty((n, 2))
+    pf = np.empty((n, 3))
+    xp = np.empty((n, 2))
+    pp = np.empty((n, 3))
+    x0, x1 = z[0], 0.0
+    p00, p01, p11 = 1.0, 0.0, 1e12  # the first stroke sample, no knowledge of the rate
+    b0, b1 = 0.5 * dt * dt, dt
+    for k in range(n):
+        if k > 0:
+            am = 0.5 * (a[k - 1] + a[k])
+            x0 = x0 + dt * x1 + b0 * am
+            x1 = x1 + b1 * am
+            n00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q * b0 * b0
+            n01 = p01 + dt * p11 + q * b0 * b1
+            p11 = p11 + q * b1 * b1
+            p00, p01 = n00, n01
+        xp[k, 0], xp[k, 1] = x0, x1
+        pp[k, 0], pp[k, 1], pp[k, 2] = p00, p01, p11
+        s = p00 + 1.0
+        k0, k1 = p00 / s, p01 / s
+        r = z[k] - x0
+        x0 += k0 * r
+        x1 += k1 * r
+        p00, p01, p11 = p00 - k0 * p00, p01 - k0 * p01, p11 - k1 * p01
+        xf[k, 0], xf[k, 1] = x0, x1
+        pf[k, 0], pf[k, 1], pf[k, 2] = p00, p01, p11
+    out = xf.copy()
+    for k in range(n - 2, -1, -1):
+        # C = P_f F^T P_p(k+1)^-1
+        m00 = pf[k, 0] + dt * pf[k, 1]
+        m01 = pf[k, 1]
+        m10 = pf[k, 1] + dt * pf[k, 2]
+        m11 = pf[k, 2]
+        q00, q01, q11 = pp[k + 1, 0], pp[k + 1, 1], pp[k + 1, 2]
+        det = q00 * q11 - q01 * q01
+        i00, i01, i11 = q11 / det, -q01 / det, q00 / det
+        d0 = out[k + 1, 0] - xp[k + 1, 0]
+        d1 = out[k + 1, 1] - xp[k + 1, 1]
+        out[k, 0] = xf[k, 0] + (m00 * i00 + m01 * i01) * d0 + (m00 * i01 + m01 * i11) * d1
+        out[k, 1] = xf[k, 1] + (m10 * i00 + m11 * i01) * d0 + (m10 * i01 + m11 * i11) * d1
+    return out
 
 
 def stroke_lag(x, a_rel, dt, band=(1.0, 8.0)):

@@ -29,7 +29,7 @@ Shapes (all differ from the core's options):
 * current chain: command held per sample, dead time ``D`` (``current_delay`` adds 5-30 ms), coil
   ``tau di_c/dt = u(t - D) - i_c`` (rise/fall), an extra lag at the field
   (``current_lag``: 8-40 ms, ``current_lag_asymmetric``: rise and fall differ 3-6x), fluid lag
-  (rise 1 ms, fall 16 ms);
+  (the driver file's: none while rising, 16 ms falling);
 * ``current_saturation``: the field saturates, ``i_e = i_sat (1 - exp(-i_f / i_sat))``;
 * ``direction_asymmetry``: the damping force times ``1 + rho tanh(v / 0.02 m/s)``.
 
@@ -113,7 +113,7 @@ class VehicleTruth:
     tau_fall: float = 0.004
     lag_rise: float = 0.0
     lag_fall: float = 0.0
-    fluid_rise: float = 0.001
+    fluid_rise: float = 0.0
     fluid_fall: float = 0.016
     i_max: float = 2.0
     i_sat: float = 0.0
@@ -161,7 +161,8 @@ def nominal_truth():
         k_stop=car['k_stop'], g=car['g'], f0=dmp['f0'], c0=dmp['c0'], c1=dmp['c1'],
         fc0=dmp['fc0'], fc1=dmp['fc1'], v_y=dmp['v_y'], dead_time=drv['dead_time'],
         tau_rise=drv['tau_rise'], tau_fall=drv['tau_fall'],
-        fluid_fall=drv['fluid_tau_fall'], i_max=drv['i_max'])
+        fluid_rise=drv.get('fluid_tau_rise', 0.0), fluid_fall=drv['fluid_tau_fall'],
+        i_max=drv['i_max'])
 
 
 def draw_truth(rng, effects=(), strength=None, spread=0.0):
@@ -250,8 +251,13 @@ def _deriv(p, y, t, u, z_r, zr_dot, dy):
     else:
         dy[8] = 0.0
         ix = ic
-    tau = p[P_FRISE] if ix > i_f else p[P_FFALL]
-    dy[9] = (ix - i_f) / tau
+    dix = dy[8] if p[P_XRISE] > 0.0 else dy[7]
+    if p[P_FRISE] <= 0.0 and (ix > i_f or (ix == i_f and dix >= 0.0)):
+        dy[9] = dix  # no fluid lag while rising: the field follows
+        i_f = ix
+    else:
+        tau = p[P_FRISE] if ix > i_f else p[P_FFALL]
+        dy[9] = (ix - i_f) / tau
     i_e = max(i_f, 0.0)
     if p[P_ISAT] > 0.0:
         i_e = p[P_ISAT] * (1.0 - math.exp(-i_e / p[P_ISAT]))
@@ -360,6 +366,9 @@ def _run(p, y0, road_z, road_zd, cmd, mode, i_sky, dt, nsub, out):
             for m in range(NY):
                 y[m] += h / 6.0 * (k1[m] + 2.0 * k2[m] + 2.0 * k3[m] + k4[m])
             # A zero rise time constant of the fluid: no lag while rising.
+            ix = y[8] if p[P_XRISE] > 0.0 else y[7]
+            if p[P_FRISE] <= 0.0 and y[9] < ix:
+                y[9] = ix
             if y[9] < 0.0:
                 y[9] = 0.0
 
@@ -369,7 +378,7 @@ def _substeps(tr, dt):
     c_max = tr.c0 + tr.c1 * tr.i_max + (tr.fc0 + tr.fc1 * tr.i_max) / tr.v_y + tr.c_tm
     m_min = min(tr.m_u, MOUNT_MASS if tr.k_tm > 0.0 else tr.m_u)
     lam = max(c_max / m_min, math.sqrt((tr.k_t + tr.k_stop + tr.k_tm) / m_min),
-              1.0 / min(tr.tau_fall, tr.fluid_rise))
+              1.0 / min(t for t in (tr.tau_fall, tr.fluid_rise, tr.fluid_fall) if t > 0.0))
     if tr.f_fric > 0.0:
         lam = max(lam, 2.0 / tr.x_pre, math.sqrt(tr.f_fric / tr.x_pre / m_min))
     return max(2, int(math.ceil(lam * dt / 2.0)))
@@ -442,6 +451,102 @@ def simulate_truth(tr, road, cmd=None, mode='given', i_sky=1.0, nsub=None):
     keys = ('body_acc', 'wheel_acc', 'stroke', 'stroke_rate', 'current_command',
             'coil_current', 'z_s', 'z_u', 'tyre_force', 'field_current')
     return {k: out[:, j].copy() for j, k in enumerate(keys)}
+
+
+@njit(cache=True)
+def _strut(p, x, v, i_f, f_f):
+    """Strut force ``S`` on the strut top (module docstring) at stroke ``x``, rate ``v``."""
+    i_e = max(i_f, 0.0)
+    if p[P_ISAT] > 0.0:
+        i_e = p[P_ISAT] * (1.0 - math.exp(-i_e / p[P_ISAT]))
+    f_d = (p[P_C0] + p[P_C1] * i_e) * v + (p[P_FC0] + p[P_FC1] * i_e) * math.tanh(v / p[P_VY])
+    if p[P_RHO] != 0.0:
+        f_d *= 1.0 + p[P_RHO] * math.tanh(v / RHO_SWITCH)
+    f_d += p[P_F0]
+    f_stop = 0.0
+    if x > p[P_XMAX]:
+        f_stop = p[P_KSTOP] * (x - p[P_XMAX])
+    elif x < p[P_XMIN]:
+        f_stop = p[P_KSTOP] * (x - p[P_XMIN])
+    if p[P_KB] > 0.0:
+        e = abs(x) - p[P_XBS]
+        if e > 0.0:
+            f_stop += math.copysign(p[P_KB] * e * e * (1.0 + e / BUMP_E0), x)
+    return p[P_MNOM] * p[P_G] + p[P_F0] - _spring(p, x)[0] - f_d - f_f - f_stop
+
+
+@njit(cache=True)
+def _from_inputs(p, x, v, i_f, dt, nsub, out):
+    """Body specific force driven by a given stroke, rate and field current (per sample).
+
+    States: Dahl force ``F_f`` and, with a top mount, the mount's deflection ``r = z_t - z_s``
+    and its rate, ``r'' = S / m_t - M (1 / m_t + 1 / m_b)`` (strut top and body equations of
+    the module docstring). Inputs linear between samples, RK4 substeps.
+    """
+    n = x.shape[0]
+    mount = p[P_KTM] > 0.0
+    mt = p[P_MT]
+    mb = p[P_MS] - mt
+    g = p[P_G]
+    y = np.zeros(3)
+    if mount:  # static deflection of the mount under the actual load
+        y[0] = (p[P_MS] - p[P_MNOM]) * g / p[P_KTM]
+    h = dt / nsub
+    ks = np.zeros((4, 3))
+    tmp = np.zeros(3)
+    for k in range(n):
+        if mount:
+            out[k] = ((p[P_MNOM] - mt) * g + p[P_KTM] * y[0] + p[P_CTM] * y[1]) / mb
+        else:
+            out[k] = _strut(p, x[k], v[k], i_f[k], y[2]) / p[P_MS]
+        if k == n - 1:
+            break
+        for j in range(nsub):
+            for stage in range(4):
+                c = (0.0, 0.5, 0.5, 1.0)[stage]
+                for m in range(3):
+                    tmp[m] = y[m] if stage == 0 else y[m] + c * h * ks[stage - 1, m]
+                a = (j + c) / nsub
+                xs = (1.0 - a) * x[k] + a * x[k + 1]
+                vs = (1.0 - a) * v[k] + a * v[k + 1]
+                fs = (1.0 - a) * i_f[k] + a * i_f[k + 1]
+                vt = vs + (tmp[1] if mount else 0.0)
+                if p[P_FC] > 0.0:
+                    ks[stage, 2] = p[P_FC] / p[P_XPRE] * (vt - abs(vt) * tmp[2] / p[P_FC])
+                else:
+                    ks[stage, 2] = 0.0
+                if mount:
+                    s = _strut(p, xs, vt, fs, tmp[2])
+                    mm = (p[P_MNOM] - mt) * g + p[P_KTM] * tmp[0] + p[P_CTM] * tmp[1]
+                    ks[stage, 0] = tmp[1]
+                    ks[stage, 1] = s / mt - mm * (1.0 / mt + 1.0 / mb)
+                else:
+                    ks[stage, 0] = 0.0
+                    ks[stage, 1] = 0.0
+            for m in range(3):
+                y[m] += h / 6.0 * (ks[0, m] + 2.0 * ks[1, m] + 2.0 * ks[2, m] + ks[3, m])
+
+
+def body_acc_from_inputs(case, stroke, stroke_rate):
+    """Return the truth's body specific force [m/s^2, +g at rest] on a given stroke and rate.
+
+    The truth model used as a predictor the way ``diagnose-vehicle`` uses its fits: the
+    strut law of the truth (its own field current, Dahl state, mount dynamics) evaluated on
+    motion estimated from the measurements instead of the true motion. Its NRMSE against the
+    measured body acceleration is the reference for a model fed the same estimated motion.
+    With a top mount the given stroke is taken as the strut's (sensor) stroke and the rate as
+    the body-wheel rate; the mount's own motion is integrated on top of it.
+    """
+    x = np.ascontiguousarray(stroke, dtype=float)
+    v = np.ascontiguousarray(stroke_rate, dtype=float)
+    i_f = np.ascontiguousarray(case.clean['field_current'], dtype=float)
+    if not (x.shape == v.shape == i_f.shape):
+        raise ValueError('body_acc_from_inputs: stroke, rate and the case must have one value '
+                         'per sample')
+    out = np.zeros(x.size)
+    dt = float(case.columns['time'][1] - case.columns['time'][0])
+    _from_inputs(case.truth.array(), x, v, i_f, dt, _substeps(case.truth, dt), out)
+    return out
 
 
 @dataclass(frozen=True)
