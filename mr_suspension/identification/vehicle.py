@@ -27,6 +27,7 @@ from numba import njit
 import numpy as np
 from scipy import optimize, signal
 
+from mr_suspension.core.quarter_car import TOP_MOUNT_MASS_FRACTION
 from mr_suspension.identification import diagnose, engine, sensors, vehicle_data
 from mr_suspension.identification.data import DataError
 from mr_suspension.identification.vehicle_data import G, nan_safe
@@ -74,8 +75,8 @@ EFFECT_TEXT = {
     'strut_friction': 'strut (seal, bushing) friction F = f_fric tanh(v / v_fric)',
     'bump_stop': 'progressive stop k_bs (|x| - x_bs)^2 sign(x) beyond a clearance',
     'spring_nonlinearity': 'progressive spring k_s x + k_s3 x^3',
-    'top_mount': 'compliant top mount: the damper force reaches the body through a '
-                 'first-order lag tau = c_damper / k_tm',
+    'top_mount': 'compliant top mount: the strut force reaches the body through a '
+                 'Kelvin-Voigt mount (k_tm, c_tm) from a strut-top mass of 1 % of m_s',
     'sprung_mass': 'sprung mass differs from the nominal (wheel equation, needs a road)',
     'current_delay': 'field current = command delayed by a different dead time',
     'current_lag': 'different (lumped) first-order current lag',
@@ -167,6 +168,7 @@ class Prepared:
         # m_s). A rougher unseen road reaches them where the fit's record did not.
         stop = np.maximum(xa - veh.stroke_max, 0.0) + np.minimum(xa - veh.stroke_min, 0.0)
         self.known = -veh.k_stop * stop / veh.m_s
+        self.mount_q = {}  # top-mount rate per (K, C): see mount_fit
         self.n = start
         q = max(1, int(round(1.0 / (SEARCH_RATE * self.dt))))
         sel = np.zeros(self.n, dtype=bool)
@@ -191,7 +193,7 @@ class Prepared:
                                                          -np.geomspace(5e-5, 4e-3, 8)))},
             'bump_stop': {'x_bs': xq},
             'spring_nonlinearity': {},
-            'top_mount': {'tau_tm': np.geomspace(2e-3, 0.06, 9)},
+            'top_mount': {'tau_tm': np.geomspace(2e-3, 0.06, 9)},  # the screen's
             'current_delay': {'dead_time': np.arange(0.002, 0.061, 0.002)},
             'current_lag': {'tau': np.geomspace(2e-3, 0.12, 12)},
             'current_lag_asymmetric': {'tau_rise': np.geomspace(5e-4, 0.12, 9),
@@ -341,12 +343,12 @@ def columns(P, effects, eta):
     """Regressors ``X`` (n x p, already negated: ``a = X theta``) and their names."""
     blocks = []
     names = None
+    mount = 'top_mount' in effects and 'k_tm_s' in eta
+    lag = 'top_mount' in effects and not mount  # the linear screen (see mount_search)
     for k, sl in enumerate(P.slices):
-        x, v, t = P.x[k], P.v[k], P.t[k]
-        i = _field(P.u[k], P.dt, effects, eta)
-        if 'imu_timing' in effects:  # the motion and current at the IMU sample's time
-            lag = eta['imu_timing']
-            x, v, i = _shift(t, x, lag), _shift(t, v, lag), _shift(t, i, lag)
+        x, v, i = _motion(P, k, effects, eta)
+        if mount:  # the damper's rate is the strut's: body-wheel rate + the mount's rate
+            v = v + P.mount_q[_mount_key(eta)][sl]
         tv = np.tanh(v / eta['v_y'])
         iy = i
         if 'current_saturation' in effects:
@@ -361,7 +363,7 @@ def columns(P, effects, eta):
             vf = eta['v_fric']
             damp.append(np.tanh(v / vf) if vf > 0 else dahl(x, -vf))
             dn.append('f_fric')
-        if 'top_mount' in effects:
+        if lag:
             al = 1.0 - math.exp(-P.dt / eta['tau_tm'])
             damp = [signal.lfilter([al], [1.0, al - 1.0], d, zi=[(1.0 - al) * d[0]])[0]
                     for d in damp]
@@ -375,9 +377,248 @@ def columns(P, effects, eta):
             cn.append('k_bs')
         blk = np.column_stack(cols)
         blk[:, 1:] *= -1.0
+        if mount:  # everything the strut carries reaches the body through the mount
+            blk[:, 1:] = _mount_filter(np.ascontiguousarray(blk[:, 1:]), eta['k_tm_s'],
+                                       eta['c_tm_s'], TOP_MOUNT_MASS_FRACTION, P.dt, MOUNT_SUB)
         blocks.append(blk)
         names = cn
     return np.concatenate(blocks), names
+
+
+def _motion(P, k, effects, eta):
+    """Stroke, body-wheel rate and field current of record ``k`` at the IMU's instants."""
+    x, v, t = P.x[k], P.v[k], P.t[k]
+    i = _field(P.u[k], P.dt, effects, eta)
+    if 'imu_timing' in effects:  # the motion and current at the IMU sample's time
+        lag = eta['imu_timing']
+        x, v, i = _shift(t, x, lag), _shift(t, v, lag), _shift(t, i, lag)
+    return x, v, i
+
+
+# -- the top mount: a strut-top mass on a Kelvin-Voigt mount ----------------------------------
+#
+# The core's top mount (``core.quarter_car``): a strut-top node of mass m_t = mu m_s carries
+# the strut force S and reaches the body through k_tm, c_tm. Per unit m_s, with the mount's
+# deflection r = z_t - z_s and M = K r + C r' (K = k_tm / m_s, C = c_tm / m_s):
+#
+#     r'' = s / mu - nu M,   nu = 1 / (mu (1 - mu)),   a_body = M / (1 - mu),
+#
+# and the damper sees the strut's rate v + r' (v: the body-wheel rate the IMUs give). Given
+# r'(t) the body acceleration is linear in theta (the mount is a linear filter of s), so the
+# fit alternates: the mount's rate from the nonlinear strut law (:func:`_mount_rate`), then
+# theta by least squares on the regressors at v + r', filtered by the mount.
+MOUNT_SUB = 2     # backward-Euler substeps per sample (mount resonance up to ~150 Hz)
+
+
+def _mount_key(eta):
+    return (round(eta['k_tm_s'], 9), round(eta['c_tm_s'], 9))
+
+
+@njit(cache=True, nogil=True, fastmath=True, error_model='numpy')
+def _mount_filter(X, K, C, mu, dt, nsub):
+    """Body acceleration from each column of strut force ``X`` through the mount.
+
+    Backward Euler on ``nsub`` substeps, the input linear within a sample, starting at the
+    static deflection (a constant passes unchanged).
+    """
+    n, p = X.shape
+    out = np.empty_like(X)
+    nu = 1.0 / (mu * (1.0 - mu))
+    h = dt / nsub
+    den = 1.0 + h * nu * (K * h + C)
+    for j in range(p):
+        r = X[0, j] / (mu * nu * K)
+        q = 0.0
+        for k in range(n):
+            out[k, j] = (K * r + C * q) / (1.0 - mu)
+            if k == n - 1:
+                break
+            for m in range(nsub):
+                a = (m + 1.0) / nsub
+                s = (1.0 - a) * X[k, j] + a * X[k + 1, j]
+                q = (q + h * (s / mu - nu * K * r)) / den
+                r += h * q
+    return out
+
+
+@njit(cache=True, nogil=True, error_model='numpy')
+def _mount_rate(sx, cv, fy, v, vy, rho, ff, vf, K, C, mu, dt, nsub):
+    """Mount rate ``r'`` per sample under the nonlinear strut law (per unit m_s).
+
+    ``s(w) = sx - A(w) (cv w + fy tanh(w / vy)) - ff tanh(w / vf)``, ``A = 1 + rho tanh(w /
+    vy)``, at the strut rate ``w = v + r'``; backward Euler with a Newton solve per substep
+    (the steep yield branch makes the strut-top equation stiff).
+    """
+    n = v.size
+    out = np.empty(n)
+    nu = 1.0 / (mu * (1.0 - mu))
+    h = dt / nsub
+    r = sx[0] / (mu * nu * K)
+    q = 0.0
+    for k in range(n):
+        out[k] = q
+        if k == n - 1:
+            break
+        for m in range(nsub):
+            a = (m + 1.0) / nsub
+            s0 = (1.0 - a) * sx[k] + a * sx[k + 1]
+            c = (1.0 - a) * cv[k] + a * cv[k + 1]
+            f = (1.0 - a) * fy[k] + a * fy[k + 1]
+            vv = (1.0 - a) * v[k] + a * v[k + 1]
+            qn = q
+            for _ in range(12):
+                w = vv + qn
+                t = math.tanh(w / vy)
+                am = 1.0 + rho * t
+                da = rho * (1.0 - t * t) / vy
+                sv = am * (c * w + f * t)
+                dsv = am * (c + f * (1.0 - t * t) / vy) + da * (c * w + f * t)
+                if ff != 0.0:
+                    tf = math.tanh(w / vf)
+                    sv += ff * tf
+                    dsv += ff * (1.0 - tf * tf) / vf
+                g = qn - q - h * ((s0 - sv) / mu - nu * (K * (r + h * qn) + C * qn))
+                # A fitted law may feed energy in where it extrapolates (dsv < 0): a chord
+                # step with the dissipative part only keeps the iteration defined.
+                dg = 1.0 + h * (max(dsv, 0.0) / mu + nu * (K * h + C))
+                d = g / dg
+                qn -= d
+                if abs(d) < 1e-12 + 1e-9 * abs(qn):
+                    break
+            q = qn
+            r += h * q
+    return out
+
+
+def mount_rates(P, fit, eta=None):
+    """Mount rate ``r'`` (all records) of ``fit``'s strut law with the mount of ``eta``."""
+    eta = dict(fit.eta if eta is None else eta)
+    th = dict(zip(fit.names, fit.theta))
+    static = [e for e in fit.effects if e != 'top_mount']
+    X, names = columns(P, static, eta)
+    vel = {'c0', 'c1', 'fy0', 'fy1'}
+    ff, vf = 0.0, 1.0
+    if 'strut_friction' in fit.effects and eta['v_fric'] > 0:
+        vel.add('f_fric')
+        ff, vf = th.get('f_fric', 0.0), eta['v_fric']
+    idx = [j for j, n in enumerate(names) if n not in vel]
+    sx_all = X[:, idx] @ np.array([th.get(names[j], 0.0) for j in idx]) + P.known
+    rho = eta['rho'] if 'direction_asymmetry' in fit.effects else 0.0
+    out = []
+    for k, sl in enumerate(P.slices):
+        _, v, i = _motion(P, k, fit.effects, eta)
+        iy = eta['i_sat'] * np.tanh(i / eta['i_sat']) if 'current_saturation' in fit.effects \
+            else i
+        cv = th.get('c0', 0.0) + th.get('c1', 0.0) * i
+        fy = th.get('fy0', 0.0) + th.get('fy1', 0.0) * iy
+        with np.errstate(all='ignore'):
+            q = _mount_rate(np.ascontiguousarray(sx_all[sl]), np.ascontiguousarray(cv),
+                            np.ascontiguousarray(fy), np.ascontiguousarray(v), eta['v_y'],
+                            rho, ff, vf, eta['k_tm_s'], eta['c_tm_s'], TOP_MOUNT_MASS_FRACTION,
+                            P.dt, MOUNT_SUB)
+        out.append(q)
+    q = np.concatenate(out)
+    return q if np.all(np.isfinite(q)) else None
+
+
+def mount_fit(P, parent, K, C, rows, start=None, iters=10, tol=5e-3):
+    """Child ``parent + top_mount`` at ``(K, C)``: alternate the mount rate and theta.
+
+    The first mount rate comes from ``start``'s theta (default: the parent's), then each
+    fit's own, until the training error changes by less than ``tol`` (relative).
+    """
+    eta = {k: v for k, v in parent.eta.items() if k != 'tau_tm'}
+    eta.update(k_tm_s=float(K), c_tm_s=float(C))
+    effects = parent.effects + ('top_mount',)
+    src = start if start is not None else parent
+    fit, last = None, np.inf
+    for _ in range(iters):
+        q = mount_rates(P, src, eta)
+        if q is None:
+            return fit
+        P.mount_q[_mount_key(eta)] = q
+        f = evaluate(P, effects, eta, rows)
+        e = float(f.cvr.train.sum())
+        if not np.isfinite(e):
+            return fit
+        fit, src = f, f
+        if abs(last - e) <= tol * e:
+            break
+        last = e
+    return fit
+
+
+def mount_search(P, parent, rows):
+    """Fit ``top_mount`` on ``parent``: a linear screen, then the two-mass mount.
+
+    The screen is the mount's linearisation (the damper force lagged by ``tau = c / k_tm``,
+    a grid of ``tau``; linear in theta, cheap). Only when the screen passes the selection rule
+    is the mount of the core fitted: ``K`` on a grid about ``c_eq / tau`` (``C`` = 1 /s),
+    each point alternating mount rate and theta from its neighbour's solution, then
+    Nelder-Mead in ``log K, log C`` on the training error. Fold k's held-out error is that of
+    the grid point with the least training error of fold k, as in :func:`search`.
+    """
+    screen = _grid_search(P, parent, 'top_mount', rows)
+    if not diagnose.accepted(screen.test, parent.test):
+        return screen
+    th = dict(zip(screen.names, screen.theta))
+    K0 = _mount_tau(P, th, {'k_tm_s': 1.0}) / screen.eta['tau_tm']
+    fits = []
+    prev = None
+    for K in K0 * np.array([0.25, 0.5, 1.0, 2.0, 4.0]):
+        f = mount_fit(P, parent, K, 1.0, rows, start=prev)
+        if f is not None:
+            fits.append(f)
+            prev = f
+    if not fits:
+        return screen
+    train = np.array([f.cvr.train for f in fits])
+    test = np.array([f.cvr.test for f in fits])
+    pick = np.argmin(train, axis=0)
+    best = fits[int(np.argmin(train.sum(1)))]
+    best.cvr = CV(test[pick, np.arange(N_FOLDS)], train[pick, np.arange(N_FOLDS)],
+                  best.cvr.theta)
+    return mount_polish(P, best, parent, rows)
+
+
+def mount_polish(P, fit, parent, rows):
+    """Nelder-Mead on ``log K, log C`` (training error), keeping the grid's fold picks."""
+    K0, C0 = fit.eta['k_tm_s'], fit.eta['c_tm_s']
+    found = [fit, float(fit.cvr.train.sum())]
+
+    def cost(z):
+        if np.max(np.abs(z)) > 3.0:
+            return np.inf
+        f = mount_fit(P, parent, K0 * math.exp(z[0]), C0 * math.exp(z[1]), rows,
+                      start=found[0])
+        if f is None:
+            return np.inf
+        e = float(f.cvr.train.sum())
+        if e < found[1]:
+            found[:] = [f, e]
+        return e
+
+    optimize.minimize(cost, np.zeros(2), method='Nelder-Mead',
+                      options={'initial_simplex': np.array([[0, 0], [0.3, 0], [0, 0.7]]),
+                               'maxfev': 20, 'xatol': 0.02, 'fatol': 1e-4 * found[1]})
+    best = found[0]
+    if best is not fit:  # the fold picks stay the grid's (no held-out sample chose them)
+        best.cvr = CV(fit.cvr.test, best.cvr.train, best.cvr.theta)
+    mount_refresh(P, best)  # the cache may hold a later trial's rate under a shared key
+    return best
+
+
+def mount_refresh(P, fit):
+    """Recompute the mount rate from ``fit``'s own theta (after other effects joined)."""
+    if 'top_mount' not in fit.effects:
+        return fit
+    q = mount_rates(P, fit)
+    key = _mount_key(fit.eta)
+    if q is not None:
+        P.mount_q[key] = q
+    elif key not in P.mount_q:  # diverged (a law that feeds energy in): the body-wheel rate
+        P.mount_q[key] = np.zeros(P.n)
+    return fit
 
 
 @dataclass
@@ -433,6 +674,13 @@ def evaluate(P, effects, eta, rows):
 
 
 def search(P, parent, effect, rows, grid=None):
+    """Child ``parent + effect``: :func:`mount_search` or :func:`_grid_search`."""
+    if effect == 'top_mount':
+        return mount_search(P, parent, rows)
+    return _grid_search(P, parent, effect, rows, grid)
+
+
+def _grid_search(P, parent, effect, rows, grid=None):
     """Child ``parent + effect``: grid over its nonlinear parameters, parent's ``eta`` kept.
 
     Fold ``k``'s held-out error is that of the grid point with the least *training* error
@@ -477,6 +725,7 @@ def refine(P, fit, rows, names=('v_y',)):
     return fit
 
 
+FIXED_ETA = ('chain', 'k_tm_s', 'c_tm_s')  # not polished here (the mount has its own search)
 LINEAR_ETA = {'rho': 0.05, 'imu_timing': 5e-4}  # searched on a linear scale (step), others log
 
 
@@ -489,7 +738,7 @@ def polish(P, fit, rows):
     coordinate sweeps of :func:`refine`, which leave a shape mismatch (a truth's stop or
     saturation that is not the catalogue's) half fitted.
     """
-    keys = [k for k in fit.eta if k != 'chain']
+    keys = [k for k in fit.eta if k not in FIXED_ETA]
     if not keys:
         return fit
     sign = {k: math.copysign(1.0, fit.eta[k]) for k in keys}
@@ -620,6 +869,14 @@ def _corner_kernel(p, zr, zrd, i_f, dt, nsub):
     return out
 
 
+def _mount_tau(P, th, eta):
+    """Maxwell time constant ``c_eq / k_tm`` of the damper (mean current, typical rate)."""
+    u = float(np.mean(np.concatenate(P.u)))
+    c_eq = max(th['c0'] + th['c1'] * u + (th['fy0'] + th['fy1'] * u) / max(P.v_scale, 1e-3),
+               1e-3)
+    return c_eq / eta['k_tm_s']
+
+
 def simulate_corner(P, fit, road, m_s):
     """Simulate the fitted corner from each record's road; returns per-record outputs."""
     th = dict(zip(fit.names, fit.theta))
@@ -635,8 +892,8 @@ def simulate_corner(P, fit, road, m_s):
         p[12] = th['k_s3'] * m_s
     if 'bump_stop' in e:
         p[13], p[14] = th['k_bs'] * m_s, eta['x_bs']
-    if 'top_mount' in e:
-        p[15] = eta['tau_tm']
+    if 'top_mount' in e:  # the road path lags the damper force by c_eq / k_tm instead
+        p[15] = _mount_tau(P, th, eta)
     if 'direction_asymmetry' in e:
         p[16] = eta['rho']
     if 'current_saturation' in e:
@@ -745,6 +1002,7 @@ class _Swapped:
         for obj, xx, vv in ((self, x, v), (self.orig, P.x[k], P.v[k])):
             obj.x, obj.v, obj.t, obj.u = [xx], [vv], [P.t[k]], [P.u[k]]
             obj.slices, obj.dt = [slice(0, sl.stop - sl.start)], P.dt
+            obj.mount_q = {key: q[sl] for key, q in P.mount_q.items()}
 
 
 def testability(P):
@@ -886,9 +1144,10 @@ def select(P, effects, untestable, progress=None):
             parent = up
     # Final polish of every nonlinear parameter (a coordinate sweep, then a joint
     # Nelder-Mead; training error).
-    keys = [k for k in parent.eta if k not in ('chain',)]
+    keys = [k for k in parent.eta if k not in FIXED_ETA]
     parent = refine(P, parent, P.full_rows, ['v_y'] + [k for k in keys if k != 'v_y'])
     parent = polish(P, parent, P.full_rows)
+    mount_refresh(P, parent)
     parent.cvr = evaluate(P, parent.effects, parent.eta, rows).cvr
     ambiguous = [p for p in ambiguous if p[0] in parent.effects]
     return base, parent, steps, ambiguous
@@ -955,11 +1214,8 @@ def corner_params(P, final, road):
     if 'spring_nonlinearity' in e:
         c['k_s3'] = th['k_s3'] * m_s
     if 'top_mount' in e:
-        u = np.concatenate(P.u)
-        c_eq = max(c['c0'] + c['c1'] * float(np.mean(u))
-                   + (c['fy0'] + c['fy1'] * float(np.mean(u))) / max(P.v_scale, 1e-3), 1.0)
-        c['k_tm'], c['c_tm'] = c_eq / final.eta['tau_tm'], 0.0
-        c['tau_tm'] = final.eta['tau_tm']
+        c['k_tm'], c['c_tm'] = final.eta['k_tm_s'] * m_s, final.eta['c_tm_s'] * m_s
+        c['mount_mass_fraction'] = TOP_MOUNT_MASS_FRACTION
     if 'current_saturation' in e:
         c['i_sat'] = final.eta['i_sat']
     if 'direction_asymmetry' in e:
@@ -1353,6 +1609,7 @@ def predict_records(res, records, nominal):
     P = Prepared(records, nominal)
     out = []
     for fit in (res.base, res.final):
+        mount_refresh(P, fit)
         out.append(predict(P, fit))
     y = P.y_all
     nrmse = [float(np.sqrt(np.mean((y - p - np.mean(y - p)) ** 2)) / np.std(y)) for p in out]
