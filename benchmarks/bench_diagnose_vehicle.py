@@ -4,7 +4,8 @@ Random cases (one hidden corner effect, a sensor fault, or none) of 60 s at 1 kH
 right per effect (on effects that change the body acceleration by >= 3x the sensor noise),
 false alarms on effect-free cases, the extended model's NRMSE on an unseen record against
 the truth model's, two ways (the truth's clean body acceleration, and the truth's strut law fed
-the same estimated motion as the fits: see :func:`truth_nrmse`), and the wall time of one
+the same estimated motion and measured current as the fits: see :func:`truth_nrmse`), and the
+wall time of one
 diagnosis.
 
     .venv/bin/python benchmarks/bench_diagnose_vehicle.py [--cases 100] [--duration 60]
@@ -35,15 +36,15 @@ def truth_nrmse(case, rec, nominal):
 
     ``clean``: the truth's own noise-free body acceleration (true motion, so only the IMU's
     noise is left). ``inputs``: the truth's strut law driven, like the fitted models, by the
-    motion ``diagnose-vehicle`` estimates from the measured stroke and IMUs
-    (``truth.vehicle.body_acc_from_inputs``): what a perfect model would score when fed the
-    same estimated motion.
+    motion ``diagnose-vehicle`` estimates from the measured stroke and IMUs and by the
+    measured coil current when there is one (``truth.vehicle.body_acc_from_inputs``): what a
+    perfect model would score when fed the same inputs.
     """
     from mr_suspension.truth.vehicle import body_acc_from_inputs
     y = sensors.lowpass(rec.body_acc - rec.body_acc.mean(), rec.dt, rec.cutoff, order=4)
     P = vehicle.Prepared([rec], nominal)
-    return {'clean': _nrmse(rec, y, case.clean['body_acc']),
-            'inputs': _nrmse(rec, y, body_acc_from_inputs(case, P.x[0], P.v[0]))}
+    pred = body_acc_from_inputs(case, P.x[0], P.v[0], rec.coil_current)
+    return {'clean': _nrmse(rec, y, case.clean['body_acc']), 'inputs': _nrmse(rec, y, pred)}
 
 
 def main(argv=None):
@@ -152,7 +153,7 @@ def summarise(rows):
               f'{np.median(ratios):.2f}')
     if ratios_in:
         every = np.concatenate(list(ratios_in.values()))
-        print(f'extended unseen NRMSE / truth model NRMSE (truth fed the same estimated motion): '
+        print(f'extended unseen NRMSE / truth model NRMSE (truth fed the same inputs): '
               f'median {np.median(every):.2f}, p90 {np.percentile(every, 90):.2f}')
         for k, v in sorted(ratios_in.items()):
             print(f'  {k:24s} median {np.median(v):.2f}, max {np.max(v):.2f} ({len(v)} cases)')

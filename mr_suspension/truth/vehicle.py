@@ -527,24 +527,48 @@ def _from_inputs(p, x, v, i_f, dt, nsub, out):
                 y[m] += h / 6.0 * (ks[0, m] + 2.0 * ks[1, m] + 2.0 * ks[2, m] + ks[3, m])
 
 
-def body_acc_from_inputs(case, stroke, stroke_rate):
-    """Return the truth's body specific force [m/s^2, +g at rest] on a given stroke and rate.
+@njit(cache=True)
+def _field_from_coil(p, coil, dt):
+    """Field current from a coil current (held per sample): the extra lag stage, the fluid."""
+    n = coil.shape[0]
+    out = np.empty(n)
+    ix = i_f = max(coil[0], 0.0)
+    for k in range(n):
+        out[k] = i_f
+        ic = max(coil[k], 0.0)
+        if p[P_XRISE] > 0.0:
+            tau = p[P_XRISE] if ic > ix else p[P_XFALL]
+            ix = ic + (ix - ic) * math.exp(-dt / tau)
+        else:
+            ix = ic
+        tau = p[P_FRISE] if ix > i_f else p[P_FFALL]
+        i_f = ix + (i_f - ix) * math.exp(-dt / tau) if tau > 0.0 else ix
+    return out
+
+
+def body_acc_from_inputs(case, stroke, stroke_rate, coil_current=None):
+    """Return the truth's body specific force [m/s^2, +g at rest] on given inputs.
 
     The truth model used as a predictor the way ``diagnose-vehicle`` uses its fits: the
-    strut law of the truth (its own field current, Dahl state, mount dynamics) evaluated on
-    motion estimated from the measurements instead of the true motion. Its NRMSE against the
-    measured body acceleration is the reference for a model fed the same estimated motion.
-    With a top mount the given stroke is taken as the strut's (sensor) stroke and the rate as
-    the body-wheel rate; the mount's own motion is integrated on top of it.
+    strut law of the truth (its own current chain, Dahl state, mount dynamics) evaluated on
+    motion estimated from the measurements instead of the true motion, and, if given, on the
+    measured ``coil_current`` (through the truth's own field lags) instead of its own.
+    Its NRMSE against the measured body acceleration is the reference for a model fed the
+    same inputs. With a top mount the given stroke is taken as the strut's (sensor) stroke and
+    the rate as the body-wheel rate; the mount's own motion is integrated on top of it.
     """
     x = np.ascontiguousarray(stroke, dtype=float)
     v = np.ascontiguousarray(stroke_rate, dtype=float)
-    i_f = np.ascontiguousarray(case.clean['field_current'], dtype=float)
-    if not (x.shape == v.shape == i_f.shape):
-        raise ValueError('body_acc_from_inputs: stroke, rate and the case must have one value '
-                         'per sample')
-    out = np.zeros(x.size)
     dt = float(case.columns['time'][1] - case.columns['time'][0])
+    if coil_current is None:
+        i_f = np.ascontiguousarray(case.clean['field_current'], dtype=float)
+    else:
+        i_f = _field_from_coil(case.truth.array(),
+                               np.ascontiguousarray(coil_current, dtype=float), dt)
+    if not (x.shape == v.shape == i_f.shape):
+        raise ValueError('body_acc_from_inputs: stroke, rate, current and the case must have '
+                         'one value per sample')
+    out = np.zeros(x.size)
     _from_inputs(case.truth.array(), x, v, i_f, dt, _substeps(case.truth, dt), out)
     return out
 
