@@ -572,13 +572,7 @@ def mount_search(P, parent, rows):
             prev = f
     if not fits:
         return screen
-    train = np.array([f.cvr.train for f in fits])
-    test = np.array([f.cvr.test for f in fits])
-    pick = np.argmin(train, axis=0)
-    best = fits[int(np.argmin(train.sum(1)))]
-    best.cvr = CV(test[pick, np.arange(N_FOLDS)], train[pick, np.arange(N_FOLDS)],
-                  best.cvr.theta)
-    return mount_polish(P, best, parent, rows)
+    return mount_polish(P, _fold_picks(fits), parent, rows)
 
 
 def mount_polish(P, fit, parent, rows):
@@ -695,6 +689,11 @@ def _grid_search(P, parent, effect, rows, grid=None):
     for pt in pts:
         eta = dict(parent.eta, **dict(zip(keys, (float(v) for v in pt))))
         fits.append(evaluate(P, effects, eta, rows))
+    return _fold_picks(fits)
+
+
+def _fold_picks(fits):
+    """Best of ``fits`` (training error) with fold k's held-out error from fold k's own pick."""
     train = np.array([f.cvr.train for f in fits])
     test = np.array([f.cvr.test for f in fits])
     pick = np.argmin(train, axis=0)

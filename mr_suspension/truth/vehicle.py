@@ -258,30 +258,13 @@ def _deriv(p, y, t, u, z_r, zr_dot, dy):
     else:
         tau = p[P_FRISE] if ix > i_f else p[P_FFALL]
         dy[9] = (ix - i_f) / tau
-    i_e = max(i_f, 0.0)
-    if p[P_ISAT] > 0.0:
-        i_e = p[P_ISAT] * (1.0 - math.exp(-i_e / p[P_ISAT]))
-    f_d = (p[P_C0] + p[P_C1] * i_e) * v + (p[P_FC0] + p[P_FC1] * i_e) * math.tanh(v / p[P_VY])
-    if p[P_RHO] != 0.0:
-        f_d *= 1.0 + p[P_RHO] * math.tanh(v / RHO_SWITCH)
-    f_d += p[P_F0]
-    f_s = _spring(p, x)[0]
-    f_stop = 0.0
-    if x > p[P_XMAX]:
-        f_stop = p[P_KSTOP] * (x - p[P_XMAX])
-    elif x < p[P_XMIN]:
-        f_stop = p[P_KSTOP] * (x - p[P_XMIN])
-    if p[P_KB] > 0.0:
-        e = abs(x) - p[P_XBS]
-        if e > 0.0:
-            f_stop += math.copysign(p[P_KB] * e * e * (1.0 + e / BUMP_E0), x)
     f_f = 0.0
     if p[P_FC] > 0.0:
         f_f = y[6]
         dy[6] = p[P_FC] / p[P_XPRE] * (v - abs(v) * f_f / p[P_FC])
     else:
         dy[6] = 0.0
-    s = mnom * g + p[P_F0] - f_s - f_d - f_f - f_stop
+    s = _strut(p, x, v, i_f, f_f)
     f_t = (mnom + mu) * g + p[P_KT] * (z_r - zu) + p[P_CT] * (zr_dot - vu)
     if f_t < 0.0:
         f_t = 0.0
