@@ -296,3 +296,17 @@ def test_top_mount_is_the_core_two_mass_mount_with_its_stiffness():
     assert res.corner['c_tm'] > 0.0
     # The fitted mount is the model, not a lag stand-in: held-out error near the noise.
     assert res.heldout['extended_nrmse'] < 0.35 * res.heldout['baseline_nrmse']
+
+
+def test_a_friction_or_stop_that_feeds_energy_in_is_not_a_cause():
+    cv = vehicle.CV(np.ones(vehicle.N_FOLDS), np.ones(vehicle.N_FOLDS), np.zeros(3))
+
+    def fit(effect, name, value):
+        return vehicle.Fit((effect,), {}, np.array([0.1, 5.0, value]), ['offset', 'k_s', name],
+                           cv)
+
+    assert not vehicle.physical(fit('strut_friction', 'f_fric', -0.4), 'strut_friction')
+    assert vehicle.physical(fit('strut_friction', 'f_fric', 0.4), 'strut_friction')
+    assert not vehicle.physical(fit('bump_stop', 'k_bs', -1e3), 'bump_stop')
+    # a softening cubic spring is physical
+    assert vehicle.physical(fit('spring_nonlinearity', 'k_s3', -1e3), 'spring_nonlinearity')

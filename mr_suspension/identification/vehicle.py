@@ -1033,6 +1033,20 @@ def testability(P):
 
 # -- selection ---------------------------------------------------------------------------------
 
+# Coefficients whose sign the physics fixes: a friction or a stop with a negative coefficient
+# feeds energy in; such a child only fits another effect's leftovers (seen next to a soft
+# top mount: f_fric = -40 to -80 N).
+PHYSICAL_SIGN = {'strut_friction': 'f_fric', 'bump_stop': 'k_bs'}
+
+
+def physical(fit, effect):
+    """Whether ``effect``'s sign-fixed coefficient in ``fit`` is positive (dissipative)."""
+    name = PHYSICAL_SIGN.get(effect)
+    if name is None or name not in fit.names:
+        return True
+    return float(fit.theta[fit.names.index(name)]) > 0.0
+
+
 def _without(P, fit, e, rows):
     effects = tuple(x for x in fit.effects if x != e)
     return evaluate(P, effects, fit.eta, rows)
@@ -1099,6 +1113,10 @@ def select(P, effects, untestable, progress=None):
             steps.append(_step(e, kids[e], parent, f'forward {len(parent.effects)}'))
             tick(e)
         acc = [e for e in cands if diagnose.accepted(kids[e].test, parent.test)]
+        for e in [e for e in acc if not physical(kids[e], e)]:
+            acc.remove(e)
+            steps.append({'stage': 'physical', 'effect': e, 'gain_mse': 0.0, 't': 0.0,
+                          'accepted': False, 'why': f'{PHYSICAL_SIGN[e]} < 0 feeds energy in'})
         pred_parent = predict(P, parent)[rows]
         contrib = {}
         strong = {}
