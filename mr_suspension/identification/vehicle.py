@@ -538,6 +538,7 @@ def mount_fit(P, parent, K, C, rows, start=None, iters=10, tol=5e-3):
             return fit
         P.mount_q[_mount_key(eta)] = q
         f = evaluate(P, effects, eta, rows)
+        f.mount_q = q
         e = float(f.cvr.train.sum())
         if not np.isfinite(e):
             return fit
@@ -553,8 +554,9 @@ def mount_search(P, parent, rows):
 
     The screen is the mount's linearisation (the damper force lagged by ``tau = c / k_tm``,
     a grid of ``tau``; linear in theta, cheap). Only when the screen passes the selection rule
-    is the mount of the core fitted: ``K`` on a grid about ``c_eq / tau`` (``C`` = 1 /s),
-    each point alternating mount rate and theta from its neighbour's solution, then
+    is the mount of the core fitted: ``K`` on a grid about ``K0 = c_eq / tau`` (``C`` = 1
+    /s), ``K0`` from the parent, then outward, each point alternating mount rate and theta
+    from its inner neighbour's solution, then
     Nelder-Mead in ``log K, log C`` on the training error. Fold k's held-out error is that of
     the grid point with the least training error of fold k, as in :func:`search`.
     """
@@ -563,13 +565,15 @@ def mount_search(P, parent, rows):
         return screen
     th = dict(zip(screen.names, screen.theta))
     K0 = _mount_tau(P, th, {'k_tm_s': 1.0}) / screen.eta['tau_tm']
-    fits = []
-    prev = None
-    for K in K0 * np.array([0.25, 0.5, 1.0, 2.0, 4.0]):
-        f = mount_fit(P, parent, K, 1.0, rows, start=prev)
-        if f is not None:
-            fits.append(f)
-            prev = f
+    first = mount_fit(P, parent, K0, 1.0, rows)
+    fits = [] if first is None else [first]
+    for side in ((2.0, 4.0), (0.5, 0.25)):  # outward from K0, each warm-started inward
+        prev = first
+        for m in side:
+            f = mount_fit(P, parent, K0 * m, 1.0, rows, start=prev)
+            if f is not None:
+                fits.append(f)
+                prev = f
     if not fits:
         return screen
     return mount_polish(P, _fold_picks(fits), parent, rows)
@@ -598,19 +602,28 @@ def mount_polish(P, fit, parent, rows):
     best = found[0]
     if best is not fit:  # the fold picks stay the grid's (no held-out sample chose them)
         best.cvr = CV(fit.cvr.test, best.cvr.train, best.cvr.theta)
-    mount_refresh(P, best)  # the cache may hold a later trial's rate under a shared key
+    P.mount_q[_mount_key(best.eta)] = best.mount_q  # a later trial may share the key
     return best
 
 
-def mount_refresh(P, fit):
-    """Recompute the mount rate from ``fit``'s own theta (after other effects joined)."""
+def mount_refresh(P, fit, rows=None):
+    """Recompute the mount rate from ``fit``'s own theta (after other effects joined).
+
+    With ``rows`` the new rate is kept only if it does not raise the training error there
+    (the alternation may stop short of its fixed point; its last rate then fits better).
+    """
     if 'top_mount' not in fit.effects:
         return fit
     q = mount_rates(P, fit)
     key = _mount_key(fit.eta)
+    old = P.mount_q.get(key)
     if q is not None:
         P.mount_q[key] = q
-    elif key not in P.mount_q:  # diverged (a law that feeds energy in): the body-wheel rate
+        if rows is not None and old is not None:
+            new = evaluate(P, fit.effects, fit.eta, rows)
+            if not new.cvr.train.sum() <= fit.cvr.train.sum():
+                P.mount_q[key] = old
+    elif old is None:  # diverged (a law that feeds energy in): the body-wheel rate
         P.mount_q[key] = np.zeros(P.n)
     return fit
 
@@ -653,6 +666,7 @@ class Fit:
     theta: np.ndarray
     names: list
     cvr: CV
+    mount_q: np.ndarray = field(default=None, repr=False)  # the mount rate it was fitted on
 
     @property
     def test(self):
@@ -1140,13 +1154,14 @@ def select(P, effects, untestable, progress=None):
                 ambiguous.append((best, other))
         parent = refine(P, kids[best], rows, ('v_y',))
         parent.cvr = evaluate(P, parent.effects, parent.eta, rows).cvr
-    # Backward check: drop a cause whose removal is not rejected by the same rule.
+    # Backward check: drop a cause whose removal is not rejected by the same rule, or whose
+    # coefficient turned unphysical once later causes joined.
     changed = True
     while changed and parent.effects:
         changed = False
         for e in parent.effects:
             red = _without(P, parent, e, rows)
-            ok = diagnose.accepted(parent.test, red.test)
+            ok = diagnose.accepted(parent.test, red.test) and physical(parent, e)
             steps.append(dict(_step(e, parent, red, 'backward'), kept=bool(ok)))
             if not ok:
                 parent = red
@@ -1164,7 +1179,7 @@ def select(P, effects, untestable, progress=None):
     keys = [k for k in parent.eta if k not in FIXED_ETA]
     parent = refine(P, parent, P.full_rows, ['v_y'] + [k for k in keys if k != 'v_y'])
     parent = polish(P, parent, P.full_rows)
-    mount_refresh(P, parent)
+    mount_refresh(P, parent, P.full_rows)
     parent.cvr = evaluate(P, parent.effects, parent.eta, rows).cvr
     ambiguous = [p for p in ambiguous if p[0] in parent.effects]
     return base, parent, steps, ambiguous
