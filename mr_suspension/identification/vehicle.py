@@ -537,7 +537,8 @@ def mount_fit(P, parent, K, C, rows, start=None, iters=10, tol=5e-3):
         if q is None:
             return fit
         P.mount_q[_mount_key(eta)] = q
-        f = evaluate(P, effects, eta, rows)
+        with np.errstate(all='ignore'):  # a trial far from the mount can overflow: inf SSE
+            f = evaluate(P, effects, eta, rows)
         f.mount_q = q
         e = float(f.cvr.train.sum())
         if not np.isfinite(e):
