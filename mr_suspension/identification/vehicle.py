@@ -565,7 +565,7 @@ def mount_search(P, parent, rows):
     if not diagnose.accepted(screen.test, parent.test):
         return screen
     th = dict(zip(screen.names, screen.theta))
-    K0 = _mount_tau(P, th, {'k_tm_s': 1.0}) / screen.eta['tau_tm']
+    K0 = _c_eq(P, th) / screen.eta['tau_tm']  # Maxwell: tau = c_eq / K
     first = mount_fit(P, parent, K0, 1.0, rows)
     fits = [] if first is None else [first]
     for side in ((2.0, 4.0), (0.5, 0.25)):  # outward from K0, each warm-started inward
@@ -883,12 +883,11 @@ def _corner_kernel(p, zr, zrd, i_f, dt, nsub):
     return out
 
 
-def _mount_tau(P, th, eta):
-    """Maxwell time constant ``c_eq / k_tm`` of the damper (mean current, typical rate)."""
+def _c_eq(P, th):
+    """Equivalent damping (per unit m_s) at the mean current and a typical rate."""
     u = float(np.mean(np.concatenate(P.u)))
-    c_eq = max(th['c0'] + th['c1'] * u + (th['fy0'] + th['fy1'] * u) / max(P.v_scale, 1e-3),
+    return max(th['c0'] + th['c1'] * u + (th['fy0'] + th['fy1'] * u) / max(P.v_scale, 1e-3),
                1e-3)
-    return c_eq / eta['k_tm_s']
 
 
 def simulate_corner(P, fit, road, m_s):
@@ -907,7 +906,7 @@ def simulate_corner(P, fit, road, m_s):
     if 'bump_stop' in e:
         p[13], p[14] = th['k_bs'] * m_s, eta['x_bs']
     if 'top_mount' in e:  # the road path lags the damper force by c_eq / k_tm instead
-        p[15] = _mount_tau(P, th, eta)
+        p[15] = _c_eq(P, th) / eta['k_tm_s']
     if 'direction_asymmetry' in e:
         p[16] = eta['rho']
     if 'current_saturation' in e:
@@ -1344,8 +1343,7 @@ def run(records, nominal=None, effects=ALL_EFFECTS, progress=None):
              'sprung_mass': ('from the wheel equation (road given)' if road else
                              'not identifiable without a force scale: nominal m_s kept, the '
                              'strut force is fitted per unit sprung mass'),
-             'drop_loss': drop, 'driver_causes': driver_causes,
-             'driver_fit': list(P.driver_fit) if P.driver_fit else None}
+             'drop_loss': drop, 'driver_causes': driver_causes}
     if road is None:
         notes['accelerometer_scale'] = ('untestable: a scale error of the body IMU is the '
                                         'same as a different sprung mass; a flip test (+-1 g) '
