@@ -15,6 +15,11 @@ faults included; a channel delay alone must come out as ``channel_delay``), exac
 the extended model's NRMSE on an unseen record of the same damper over that record's noise
 floor, and the time of a 60 s, 1 kHz record through the whole catalogue.
 
+With ``--clean-inputs`` every out-of-model case is diagnosed a second time, measured with
+noise-free displacement, velocity and current sensors (same truth, faults and force noise):
+the gap between the two unseen / floor figures is what input noise costs, the rest is the
+model.
+
 Usage: ``python benchmarks/bench_diagnose.py [--cases 300] [--duration 12] [--jobs 2]``.
 """
 
@@ -58,9 +63,32 @@ def _record(columns, name):
         return dataio.build_record(name, columns)
 
 
+def _unseen_ratio(rec, unseen, u_floor):
+    """Fit ``rec``; return the fit and its unseen NRMSE over the floor (extended, baseline)."""
+    d = diagnose.Diagnosis()
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        res = d.fit([rec])
+        score = d.score(unseen)
+        b_score = d.score(unseen, 'baseline')
+    if not u_floor > 0:
+        return res, np.nan, np.nan
+    return res, score / u_floor, b_score / u_floor
+
+
+def _clean_inputs_ratio(seed, effs, duration):
+    """Unseen / floor of the same case measured with noise-free motion and current sensors."""
+    case = truth_cases.make_case(seed, effs, sensor_faults=None, duration=duration,
+                                 measured_current=None, input_noise=False)
+    u_case = case.unseen()
+    return _unseen_ratio(_record(case.columns, f'truth-{seed}-ci'),
+                         _record(u_case.columns, f'truth-{seed}-ci-unseen'),
+                         u_case.floor_nrmse)[1]
+
+
 def run_case(job):
     """Diagnose one case; return a dict of outcomes (runs in a worker process)."""
-    family, k, effs, seed, duration = job
+    family, k, effs, seed, duration, clean_inputs = job
     diagnose.JOBS = 1  # the cases run in parallel processes already
     t0 = time.time()
     if family == 'in-model':
@@ -93,12 +121,9 @@ def run_case(job):
         # it is a real current lag.
         driver = case.driver_contribution if case.sensor['spec'].current == 'absent' else 0.0
     try:
-        d = diagnose.Diagnosis()
-        with warnings.catch_warnings():
-            warnings.simplefilter('ignore')
-            res = d.fit([rec])
-            score = d.score(unseen)
-            b_score = d.score(unseen, 'baseline')
+        res, ratio, b_ratio = _unseen_ratio(rec, unseen, u_floor)
+        ci_ratio = (_clean_inputs_ratio(seed, effs, duration)
+                    if clean_inputs and family == 'out-of-model' else np.nan)
     except (dataio.DataError, ValueError) as exc:
         return {'family': family, 'k': k, 'effects': effs, 'error': str(exc)}
     est = res.floor.nrmse if res.floor is not None else float('nan')
@@ -107,8 +132,8 @@ def run_case(job):
             'causes': res.physical_causes, 'sensor': tuple(c for c in res.causes
                                                            if c not in res.physical_causes),
             'verdict': res.verdict, 'contrib': contrib, 'floor': floor,
-            'floor_est': est, 'unseen_ratio': score / u_floor if u_floor > 0 else np.nan,
-            'unseen_baseline_ratio': b_score / u_floor if u_floor > 0 else np.nan, 'seed': seed,
+            'floor_est': est, 'unseen_ratio': ratio, 'unseen_baseline_ratio': b_ratio,
+            'unseen_ratio_clean_inputs': ci_ratio, 'seed': seed,
             'heldout': res.heldout['extended_nrmse'], 'seconds': time.time() - t0}
 
 
@@ -179,6 +204,12 @@ def summarise(family, results, strict=False):
         print(f'extended model on an unseen record / its noise floor: median '
               f'{np.median(ratio):.2f}, 95th percentile {np.percentile(ratio, 95):.2f}, '
               f'max {ratio.max():.2f}, above 3x: {int(np.sum(ratio > 3))}/{ratio.size}')
+    ci = np.array([r.get('unseen_ratio_clean_inputs', np.nan) for r in res])
+    ci = ci[np.isfinite(ci)]
+    if ci.size:
+        print(f'  the same cases with noise-free displacement, velocity and current sensors: '
+              f'median {np.median(ci):.2f}, 95th percentile {np.percentile(ci, 95):.2f}, '
+              f'max {ci.max():.2f}, above 3x: {int(np.sum(ci > 3))}/{ci.size}')
     fe = np.array([r['floor_est'] / r['floor'] for r in res
                    if np.isfinite(r['floor_est']) and r['floor'] > 0])
     nf = sum(not np.isfinite(r['floor_est']) for r in res)
@@ -225,10 +256,15 @@ def main(argv=None):
     ap.add_argument('--jobs', type=int, default=2)
     ap.add_argument('--no-timing', action='store_true')
     ap.add_argument('--json', default=None, help='write every case outcome to this JSON file')
+    ap.add_argument('--clean-inputs', action='store_true',
+                    help='also diagnose every out-of-model case measured with noise-free '
+                         'displacement, velocity and current (doubles the time): how much of '
+                         'the unseen / floor figure is input noise, how much the model')
     args = ap.parse_args(argv)
-    jobs = [('out-of-model', k, e, args.seed * 100003 + k, args.duration)
+    ci = args.clean_inputs
+    jobs = [('out-of-model', k, e, args.seed * 100003 + k, args.duration, ci)
             for k, e in enumerate(case_list(args.cases, args.seed, truth_rig.EFFECTS))]
-    jobs += [('in-model', k, e, args.seed * 100003 + 50000 + k, args.duration)
+    jobs += [('in-model', k, e, args.seed * 100003 + 50000 + k, args.duration, False)
              for k, e in enumerate(case_list(args.in_model, args.seed + 1, engine.EFFECTS))]
     t0 = time.time()
     results = []

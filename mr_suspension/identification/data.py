@@ -348,12 +348,21 @@ def build_record(name, cols, opts=None, meta=None):
             vsrc = derived + '; measured velocity replaced'
         elif not opts.velocity_cutoff:
             # White sensor noise above the motion band only scatters the yield branch.
+            vrms = float(np.sqrt(np.mean(v[mask] ** 2)))
             vcut, removed = sensors.motion_band(v, dt)
-            if vcut is not None and removed > 1e-3 * float(np.sqrt(np.mean(v[mask] ** 2))):
-                # (clean data are left exactly as they are)
-                v = sensors.smooth_velocity(v, dt, vcut)
-                vsrc = f'measured (zero-phase Butterworth order 4 {vcut:.3g} Hz: noise above ' \
-                       f'the motion band removed, {removed:.3g} m/s RMS)'
+            if vcut is not None and removed > 1e-3 * vrms:
+                # (clean data are left exactly as they are) The displacement's derivative is
+                # the better rate below the crossover f_c; what noise is left above the
+                # motion band is then cut.
+                v, fc = sensors.fuse_velocity(x, v, dt)
+                parts = [] if fc is None else \
+                    [f'fused with d(displacement)/dt below {fc:.3g} Hz (Wiener weights)']
+                vcut, removed = sensors.motion_band(v, dt)
+                if vcut is not None and removed > 1e-3 * vrms:
+                    v = sensors.smooth_velocity(v, dt, vcut)
+                    parts.append(f'zero-phase Butterworth order 4 {vcut:.3g} Hz: noise above '
+                                 f'the motion band removed, {removed:.3g} m/s RMS')
+                vsrc = f'measured ({"; ".join(parts)})' if parts else vsrc
     else:
         v = derive_velocity(x, dt, cut, order)
         vsrc = derived

@@ -13,14 +13,14 @@ resolve to the simpler one. Effects that the excitation cannot reveal are ``unte
 """
 
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import os
 
 from numba import njit
 import numpy as np
 
 from mr_suspension.identification import data as dataio
-from mr_suspension.identification import engine, noise
+from mr_suspension.identification import engine, noise, sensors
 
 G_MIN = 0.03
 T_MIN = 2.0
@@ -33,6 +33,7 @@ CLEAR_LOSS = 0.6
 SCREEN_FIXED = ()  # parameters screening fits keep at the parent's value (none: see docs)
 MAX_SECONDS = 300.0  # longer data are judged on windows spread over it (data.limit_duration)
 PARTLY_FACTOR = 2.0  # extended held-out NRMSE above this many noise floors: partly explained
+CURRENT_NOISE_MIN = 1e-3  # white current noise (share of its range) worth removing
 UPGRADE = 'current_lag->current_lag_asymmetric'
 FINE = ('current_delay', 'current_lag')  # current timing below the search rate's step
 FULL_RATE_SENSORS = ('channel_filter',)  # sensor effects judged at the full rate only
@@ -176,6 +177,37 @@ def _driver_error(recs, dead, tr, tf):
         y = engine.field_current(r.command, r.dt, dead, tr, tf)
         err += float(np.sum((r.i_in - y) ** 2))
     return err
+
+
+def denoise_current(record, driver):
+    """Measured coil current fused with the command through the fitted driver.
+
+    The command through ``driver`` (dead time, rise/fall lags: ``engine.field_current``) is a
+    second, noise-free measurement of the coil current, wrong only by the driver model's
+    error; the measured current carries white noise. Their difference ``r = i_m - i_d`` holds
+    both: its band is found as a motion's (``sensors.motion_band``: where its spectrum stands
+    above its white level, at least ``sensors.BAND_MIN``), and ``i = i_d + LP(r)`` (zero-phase,
+    4th order) keeps the model error in that band and drops the noise above it. A driver model
+    that misses fast dynamics widens the band and so removes less. Returns ``(record,
+    source)``: the record with the fused ``i_in`` and a description, or the record as it is
+    and None without a measured current, a command or a driver, or when the noise above the
+    band is below ``CURRENT_NOISE_MIN`` of the current's range.
+    """
+    if (not driver or record.input_kind != 'current' or record.command is None
+            or not np.ptp(record.command) > 0):
+        return record, None
+    i_d = engine.field_current(np.ascontiguousarray(record.command, dtype=float), record.dt,
+                               driver['dead_time'], driver['tau_rise'], driver['tau_fall'])
+    r = record.i_in - i_d
+    cut, white = sensors.motion_band(r, record.dt)
+    if not white > CURRENT_NOISE_MIN * float(np.ptp(record.i_in)):
+        return record, None
+    cut = sensors.BAND_MIN if cut is None else cut
+    i_f = i_d + sensors.lowpass(r, record.dt, cut, order=4)
+    source = (f'measured coil current fused with the command through the fitted driver '
+              f'(difference low-passed at {cut:.3g} Hz, zero-phase; {1e3 * white:.3g} mA RMS '
+              'white noise removed)')
+    return replace(record, i_in=i_f, meta={**record.meta, 'current_source': source}), source
 
 
 def identify_driver(records, nominal=None):
@@ -892,6 +924,12 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     parameter search saw.
     """
     full, long_note = dataio.limit_duration(list(records), MAX_SECONDS)
+    # The noise floor depends on the data alone: worked out alongside.
+    floor_job = _background(lambda: _floor(full))
+    # The driver first: the command through it cleans the measured coil current's noise.
+    driver = identify_driver(full, nominal_driver)
+    full, current_notes = zip(*(denoise_current(r, driver) for r in full))
+    full = list(full)
     recs = full
     if search_rate:
         recs = [dataio.decimate(r, max(1, int(1.0 / (r.dt * search_rate) + 1e-9)))
@@ -900,17 +938,16 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     untestable, notes = testability(recs)
     if long_note:
         notes['long_records'] = long_note
+    if any(current_notes):
+        notes['current_source'] = {r.name: c for r, c in zip(full, current_notes) if c}
     physics = [e for e in effects if e in engine.EFFECTS and e not in untestable]
     # A force-channel low-pass rolls off above the search rate's band: judged at the full rate.
-    sensors = [e for e in effects if e in engine.SENSOR_EFFECTS and e not in FULL_RATE_SENSORS]
+    sens = [e for e in effects if e in engine.SENSOR_EFFECTS and e not in FULL_RATE_SENSORS]
     full_sensors = [e for e in effects if e in FULL_RATE_SENSORS]
     tick = progress or (lambda *a, **k: None)
-    # The noise floor and the driver depend on the data alone: worked out alongside.
-    floor_job = _background(lambda: _floor(full))
-    driver_job = _background(lambda: identify_driver(full, nominal_driver))
     base = engine.fit(ds, ())
     tick('baseline')
-    chosen, fits, singles, steps, stage_amb, parent0 = _forward(ds, base, sensors, physics,
+    chosen, fits, singles, steps, stage_amb, parent0 = _forward(ds, base, sens, physics,
                                                                 tick)
     base = fits[()]
     delay_kept = any(c in engine.SENSOR_EFFECTS for c in chosen)
@@ -935,7 +972,7 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
             # regressors pays as smoothing of the input noise, not as a sensor).
             lagging = 'channel_delay' in chosen and final.delay > 0
             final, chosen, fine = _fine_timing(
-                ds, start, chosen, physics + sensors + (full_sensors if lagging else []), tick)
+                ds, start, chosen, physics + sens + (full_sensors if lagging else []), tick)
             steps = tuple(steps) + tuple(fine)
             for e, loss in _fine_losses(fine).items():
                 if e in chosen:
@@ -951,7 +988,6 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     input_kind = sorted({r.input_kind for r in full})[0]
     order = sorted(chosen, key=lambda e: (e not in engine.SENSOR_EFFECTS,
                                           -drop_loss.get(e, 0.0)))
-    driver = driver_job()
     if driver and driver.get('deviations'):
         order += driver['deviations']
     locations = {e: location(e, input_kind) for e in order}
@@ -1030,6 +1066,7 @@ class Diagnosis:
         """Force [N] of the extended (or ``'baseline'``) model on a record, as measured."""
         res = self._check()
         fit = res.final if model == 'extended' else res.baseline
+        record = denoise_current(record, res.driver)[0]
         return engine.simulate(record, fit.params(), fit.dynamics(), **fit.channel)
 
     def score(self, record, model='extended'):

@@ -108,4 +108,9 @@ def predict(model, record):
     """Force [N] predicted by a model dictionary on a record (same path as the fit)."""
     check_model(model)
     params = ExtendedDamperParams.from_dict(model['damper'])
+    if model.get('driver'):
+        # As in the fit: a measured coil current is cleaned by the command through the
+        # fitted driver (diagnose.denoise_current).
+        from mr_suspension.identification.diagnose import denoise_current
+        record = denoise_current(record, model['driver'])[0]
     return engine.simulate(record, params, fitted_dynamics(model['current_dynamics']))

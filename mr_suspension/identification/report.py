@@ -151,7 +151,9 @@ def build(res, records, validate=(), elapsed=None):
         'evidence': {'selection_steps': list(res.steps), 'swap_tests': res.swaps,
                      'excitation': res.notes},
         'data': [{'name': r.name, 'samples': r.n, 'dt': r.dt, 'input': r.input_kind,
-                  'velocity': r.velocity_source} for r in records],
+                  'velocity': r.velocity_source,
+                  'current': res.notes.get('current_source', {}).get(r.name, r.input_kind)}
+                 for r in records],
     }
     if res.verdict == 'partly_explained':
         report['unexplained'] = (
@@ -410,6 +412,8 @@ def markdown(report, figures):
                   + (f'; nominal {1e3 * nom["dead_time"]:.1f} / {1e3 * nom["tau_rise"]:.1f} / '
                      f'{1e3 * nom["tau_fall"]:.1f} ms (NRMSE {nom["nrmse"]:.4f})' if nom else '')
                   + '. model.json carries the fitted driver.']
+        fused = sorted({q['current'] for q in report['data'] if q['current'] != q['input']})
+        lines += [f'The force model sees the {c}.' for c in fused]
     if report['ambiguous']:
         lines += ['', '## Ambiguous', '']
         for p in report['ambiguous']:

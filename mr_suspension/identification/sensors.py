@@ -382,27 +382,79 @@ def motion_band(y, dt):
     ends at the highest frequency below 0.25 of the sampling rate whose spectrum is above
     ``BAND_SNR`` times it. Returns ``(cut-off, white-noise RMS above it)``: the cut-off is
     ``BAND_FACTOR`` times that edge, within ``BAND_MIN`` and 0.4 of the sampling rate, or None
-    when nothing stands above the noise or the record is too short to tell (no filtering).
+    when nothing stands above the noise (with the white RMS of the whole band) or the record is
+    too short to tell (no filtering; 0).
     """
-    y = np.asarray(y, dtype=float)
     fs = 1.0 / dt
-    if y.size < 256 or not np.all(np.isfinite(y)):
+    spec = _spectrum(y, dt)
+    if spec is None:
         return None, 0.0
-    nper = int(min(y.size // 4, 2 ** round(math.log2(max(64.0, 2.0 * fs)))))
-    f, p = signal.welch(y, fs, nperseg=nper, detrend='linear')
-    top = f >= 0.3 * fs
+    f, p, white = spec
     # Never more than BAND_RANGE below the peak: a deterministic residue (stamps rounded in a
     # repeating pattern, quantisation) leaves a near-zero median that window leakage beats.
-    white = float(np.median(p[top])) if top.any() else 0.0
     noise = max(white, BAND_RANGE * float(p.max()))
     if not noise > 0.0:
         return None, 0.0
     band = (f > 0) & (f < 0.25 * fs)
     above = np.nonzero(band & (p > BAND_SNR * noise))[0]
     if not above.size:
-        return None, 0.0
+        return None, math.sqrt(white * 0.5 * fs)
     cut = float(min(max(BAND_FACTOR * f[above[-1]], BAND_MIN), 0.4 * fs))
     return cut, math.sqrt(white * (0.5 * fs - cut))
+
+
+def _spectrum(y, dt):
+    """Welch spectrum of ``y`` (about 2 s segments) and its white level ``(f, p, white)``.
+
+    ``white`` [unit^2/Hz, one-sided] is the median spectrum above 0.3 of the sampling rate
+    (robust to tones there); None when ``y`` is too short or not finite.
+    """
+    y = np.asarray(y, dtype=float)
+    fs = 1.0 / dt
+    if y.size < 256 or not np.all(np.isfinite(y)):
+        return None
+    nper = int(min(y.size // 4, 2 ** round(math.log2(max(64.0, 2.0 * fs)))))
+    f, p = signal.welch(y, fs, nperseg=nper, detrend='linear')
+    top = f >= 0.3 * fs
+    return f, p, float(np.median(p[top])) if top.any() else 0.0
+
+
+FUSE_MIN = 1.0       # [Hz] below this crossover the displacement adds nothing worth a filter
+
+
+def fuse_velocity(x, v, dt):
+    """Measured velocity fused with the derivative of the measured displacement.
+
+    Two measurements of one rate with white noise: ``v`` (level ``S_v``) and ``dx/dt``
+    (central differences, level about ``w^2 S_x``, which grows with frequency). Their
+    minimum-variance (Wiener) combination weighs the derivative by
+    ``W = S_v / (S_v + w^2 S_x) = 1 / (1 + (f/f_c)^2)``, ``f_c = sqrt(S_v / S_x) / 2 pi``,
+    and ``W`` is exactly the gain of a first-order Butterworth run forwards and backwards, so
+    ``v_f = v + filtfilt_1(dx/dt - v)``: the difference holds no motion, only the two noises,
+    and the filter has no phase lag. The
+    white levels are the spectra's medians above 0.3 of the sampling rate (``_spectrum``).
+    Returns ``(v_f, f_c)``; ``(v, None)`` when either level is not measurable or ``f_c`` is
+    below ``FUSE_MIN``. With ``f_c`` above 0.45 of the sampling rate the derivative wins at
+    every frequency and is returned.
+    """
+    sx, sv = _spectrum(x, dt), _spectrum(v, dt)
+    if sx is None or sv is None or not (sx[2] > 0.0 and sv[2] > 0.0):
+        return v, None
+    fc = math.sqrt(sv[2] / sx[2]) / (2.0 * math.pi)
+    if fc < FUSE_MIN:
+        return v, None
+    # Central differences (not a higher-order stencil): a velocity that the rig itself took
+    # as the central difference of this displacement is left exactly as it is.
+    d = np.gradient(np.asarray(x, dtype=float), dt) - v
+    if not np.max(np.abs(d)) > 1e-9 * np.max(np.abs(v)):
+        return v, None
+    if fc >= 0.45 / dt:
+        return v + d, fc
+    sos = signal.butter(1, fc * 2.0 * dt, output='sos')
+    # Even (mirror) padding: the difference is noise about zero, and an odd extension would
+    # shift the padding by twice its first, noisy sample.
+    pad = int(min(d.size - 1, max(15, 3.0 / (fc * dt))))
+    return v + signal.sosfiltfilt(sos, d, padtype='even', padlen=pad), fc
 
 
 def smooth_velocity(v, dt, cutoff):

@@ -7,7 +7,7 @@ and the rig, and, per ``record`` index, the programme and the noise. ``record=1,
 noise: an unseen record for validation. Every record starts with a cold damper.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -79,13 +79,15 @@ def _rng(seed, *tags):
 
 def make_case(seed, effects=(), sensor_faults=(), duration=20.0, rate=1000.0, kind='full',
               shape=None, strength=None, measured_current=None, record=0, sensor_clean=False,
-              substeps=10, i_max=1.0, driver_tau=None, current_site='field'):
+              substeps=10, i_max=1.0, driver_tau=None, current_site='field', input_noise=True):
     """Draw a case (see the module docstring); ``sensor_faults=None`` draws 0-3 faults.
 
     ``effects`` and ``shape``/``strength``/``driver_tau``/``current_site`` go to
     ``rig.draw_truth``; ``kind``, ``duration`` [s], ``rate`` [Hz] to ``rig.programme``;
     ``sensor_faults``, ``sensor_clean`` and ``measured_current`` (None = random) to
-    ``sensors.draw_sensor``.
+    ``sensors.draw_sensor``. ``input_noise=False`` keeps the drawn spec, faults and force noise
+    but measures displacement, velocity and current without noise (the same draws otherwise):
+    what a model could reach with perfect motion and current sensors.
     """
     if int(seed) != seed or seed < 0:
         raise ValueError(f'make_case: seed must be a non-negative integer, got {seed}')
@@ -96,11 +98,13 @@ def make_case(seed, effects=(), sensor_faults=(), duration=20.0, rate=1000.0, ki
             'duration': duration, 'rate': rate, 'kind': kind, 'shape': shape,
             'strength': strength, 'measured_current': measured_current, 'record': int(record),
             'sensor_clean': sensor_clean, 'substeps': substeps, 'i_max': i_max,
-            'driver_tau': driver_tau, 'current_site': current_site}
+            'driver_tau': driver_tau, 'current_site': current_site, 'input_noise': input_noise}
     truth = rig.draw_truth(_rng(seed, 1), effects, shape=shape, strength=strength, i_max=i_max,
                            driver_tau=driver_tau, current_site=current_site)
     spec = sensors.draw_sensor(_rng(seed, 2), faults=sensor_faults, clean=sensor_clean,
                                rate=rate, measured_current=measured_current)
+    if not input_noise:
+        spec = replace(spec, displacement_noise=0.0, velocity_noise=0.0, current_noise=0.0)
     t, x, i_cmd = rig.programme(_rng(seed, 3, record), duration, rate, kind, i_max=i_max)
     clean = rig.simulate(truth, t, x, i_cmd, substeps)
     cols, info = sensors.apply(_rng(seed, 4, record), t, clean, spec)
