@@ -293,3 +293,48 @@ def test_noisy_velocity_is_fused_with_the_displacement_below_the_wiener_crossove
     # A clean displacement: the derivative wins; a clean velocity is left alone.
     assert sensors.fuse_velocity(x, cols['velocity'], dt)[1] > 0.45 * rate
     assert sensors.fuse_velocity(cols['displacement'], v, dt)[1] is None
+
+
+def test_a_frozen_frame_is_found_however_short_its_runs():
+    """All channels repeating their previous value at once, in runs of 1-4 samples."""
+    t = np.arange(12000) * 1e-3
+    cols = _cols(t)
+    rng = np.random.default_rng(9)
+    starts = rng.choice(np.arange(10, t.size - 10, 40), size=30, replace=False)
+    held = np.zeros(t.size, dtype=bool)
+    for s, ln in zip(starts, rng.integers(1, 5, size=starts.size)):
+        held[s + 1:s + 1 + ln] = True
+    idx = np.maximum.accumulate(np.where(held, 0, np.arange(t.size)))
+    frozen = {k: (v[idx] if k != 'current_command' and k != 'time' else v)
+              for k, v in cols.items()}
+    # Each channel alone: runs shorter than MIN_RUN are never a single-channel fault.
+    assert held.sum() > 30 and sensors.MIN_RUN > 4
+    rec = _build(frozen)
+    f = [f for f in rec.findings if f['channel'] == 'force, displacement, velocity']
+    assert len(f) == 1 and f[0]['finding'] == 'dropout' and f[0]['samples'] == held.sum()
+    np.testing.assert_array_equal(rec.mask, ~held)
+    # Channels that repeat often on their own (coarse quantisation at slow motion) coincide
+    # by chance: no finding.
+
+    def repeating(p):
+        rep = rng.uniform(size=t.size) < p
+        rep[0] = False
+        return rng.normal(size=t.size)[np.maximum.accumulate(np.where(rep, 0, np.arange(t.size)))]
+
+    often = {'force': repeating(0.3), 'displacement': repeating(0.3)}
+    assert sensors.frame_holds(often) == (None, None)
+    assert sensors.frame_holds({'force': cols['force']}) == (None, None)
+
+
+def test_heavy_clipping_at_both_rails_is_found():
+    """15 % of the samples at the rails: their own runs must not set the chance level."""
+    from mr_suspension.truth import cases
+
+    case = cases.make_case(7, (), sensor_faults=('clipping',), duration=12.0,
+                           measured_current=False, shape='bingham_tanh')
+    force = case.columns['force']
+    assert case.sensor['info']['clipped'] > 0.1 * force.size
+    rec = _build(case.columns)
+    (f,) = [f for f in rec.findings if f['finding'] == 'clipping']
+    assert f['rail_high'] == force.max() and f['rail_low'] == force.min()
+    np.testing.assert_array_equal(rec.mask, case.sensor['info']['valid'])

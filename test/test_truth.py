@@ -419,3 +419,23 @@ def test_truth_modules_import_nothing_from_the_fitting_code():
                     assert name.startswith(('mr_suspension.truth', 'mr_suspension.core.road')), \
                         f'{path.name}: {name}'
         assert 'importlib' not in path.read_text()
+
+
+def test_transfer_floor_counts_a_drifting_channels_level_shift():
+    """A fitted model carries the training record's mean noise; drift moves it per record."""
+    drift = cases.make_case(3, (), sensor_faults=('drift',), duration=6.0,
+                            measured_current=False)
+    unseen = drift.unseen()
+    info_t, info_u = drift.sensor['info'], unseen.sensor['info']
+    e_t = (drift.columns['force'] - info_t['reference_force'])[info_t['valid']]
+    e_u = (unseen.columns['force'] - info_u['reference_force'])[info_u['valid']]
+    s_u = np.std(unseen.columns['force'][info_u['valid']])
+    shift = (np.mean(e_u) - np.mean(e_t)) / s_u
+    got = cases.transfer_floor(drift, unseen)
+    # mean((e - m)^2) = var(e) + (mean(e) - m)^2: the own floor plus the level shift.
+    assert got == pytest.approx(np.hypot(unseen.floor_nrmse, shift), rel=1e-9)
+    assert abs(shift) > 0.2 * unseen.floor_nrmse  # the drift's shift is not negligible here
+    # Without drift the two floors agree (the coloured noise's mean is small).
+    still = cases.make_case(3, (), sensor_faults=(), duration=6.0, measured_current=False)
+    assert cases.transfer_floor(still, still.unseen()) == pytest.approx(
+        still.unseen().floor_nrmse, rel=0.05)

@@ -288,6 +288,11 @@ def build_record(name, cols, opts=None, meta=None):
             cols[k] = sensors.fill(np.where(good, y, 0.0), good)
             row_mask &= good
         findings.extend(f for f in (fnd, fs, fc) if f is not None)
+    mf, ff = sensors.frame_holds({k: cols[k] for k in ('force', 'displacement', 'velocity')
+                                  if k in checked})
+    if ff is not None:
+        findings.append(ff)
+        row_mask &= mf
     base, ft = sensors.uniform_time(t)
     gap_mask, fg = sensors.missing_rows(base)
     findings.extend(f for f in (ft, fg) if f is not None)

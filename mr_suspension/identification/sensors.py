@@ -183,29 +183,34 @@ def _resolution(x):
     return float(d.min()) if d.size else 0.0
 
 
-def _held_runs(x, consistent=None):
+def _held_runs(x, consistent=None, suspects=()):
     """Repeated-value runs of ``x`` not explained by chance, resolution or dynamics.
 
     Returns a list of ``(start, length, value)``. ``consistent`` (bool array, optional) marks
     samples where another sensor agrees with a hold (e.g. the velocity is ~0 while the
     displacement holds); a run that is mostly consistent is genuine. Otherwise a run is a
     fault when a quadratic through its neighbours leaves the held value by more than 1.5
-    resolution steps plus 3 noise sigmas (from the second differences).
+    resolution steps plus 3 noise sigmas (from the second differences). The chance of a run
+    is judged from the channel's repeats at values other than ``suspects`` (the rails when
+    looking for clipping: many long runs at a rail would otherwise raise the repeat rate they
+    are judged by, and hide themselves).
     """
     n = x.size
     eq = x[1:] == x[:-1]
-    p = float(eq.mean()) if n > 1 else 0.0
-    if p == 0.0:
+    if not eq.any():
         return []
+    own = eq & ~np.isin(x[1:], suspects) if len(suspects) else eq
+    p = float(own.mean()) if n > 1 else 0.0
     start, length = runs(eq)
     length = length + 1
     lmin = MIN_RUN
-    if p < 1.0:
+    if 0.0 < p < 1.0:
         # chance runs if samples repeat independently with probability p ...
         lmin = max(lmin, int(math.ceil(1 + math.log(FALSE_RUNS / n) / math.log(p))))
         # ... and if runs extend geometrically as the channel's short runs do (quantised,
         # slowly varying signals cluster their repeats)
-        cnt = [int(np.sum(length >= j)) for j in (2, 3, 4)]
+        own_length = runs(own)[1] + 1
+        cnt = [int(np.sum(own_length >= j)) for j in (2, 3, 4)]
         if cnt[0] >= 20:
             rho = max(cnt[1] / cnt[0], cnt[2] / max(cnt[1], 1), p)
             if 0.0 < rho < 1.0:
@@ -258,7 +263,7 @@ def clipping(name, x, consistent=None):
     hi, lo = float(np.max(x[ok])), float(np.min(x[ok]))
     if hi == lo:
         return mask, None        # a constant channel is judged by the caller, not masked
-    held = _held_runs(x, consistent)
+    held = _held_runs(x, consistent, suspects=(hi, lo))
     rails = sorted({v for _, _, v in held if v in (hi, lo)})
     if not rails:
         return mask, None
@@ -309,6 +314,38 @@ def dropouts(name, x, consistent=None, frozen=True, exclude=None):
         'interpolated only to keep the model states running', samples=int((~mask).sum()),
         nan_samples=int(bad.sum()), nan_runs=nan_start.size, frozen_samples=nf,
         frozen_runs=len(frozen), longest=longest, fraction=float((~mask).mean()))
+
+
+def frame_holds(channels):
+    """Mask samples where every continuous measured channel repeats its previous value at once.
+
+    An acquisition that freezes (a frame re-sent, a held bus) repeats all channels together,
+    for runs of any length, also shorter than a single channel's hold test can tell from
+    chance. Independent noisy channels repeat together by chance with probability
+    ``prod p_c``, ``p_c`` a channel's own repeat rate at the other samples; the coincidences
+    are a fault when the expected number of chance coincidences ``n prod p_c`` is below
+    ``FALSE_RUNS``. ``channels``: name -> array (two or more: force, displacement, velocity).
+    Returns ``(mask, finding or None)``; the held copies are masked, not the sample they copy.
+    """
+    if len(channels) < 2:
+        return None, None
+    eqs = [np.r_[False, y[1:] == y[:-1]] for y in map(np.asarray, channels.values())]
+    held = np.logical_and.reduce(eqs)
+    nh = int(held.sum())
+    if nh == 0:
+        return None, None
+    rest = max(int((~held).sum()), 1)
+    chance = held.size * math.prod(float((eq & ~held).sum()) / rest for eq in eqs)
+    if chance > FALSE_RUNS:
+        return None, None
+    start, length = runs(held)
+    names = ', '.join(channels)
+    return ~held, finding(
+        'dropout', names, 'excluded',
+        f'{nh} sample(s) in {start.size} run(s) (longest {int(length.max())}) where {names} '
+        f'all repeat their previous value at once: a frozen acquisition frame (chance '
+        f'coincidences expected: {chance:.1e}); masked', samples=nh, frozen_samples=nh,
+        frame_runs=int(start.size), longest=int(length.max()), fraction=nh / held.size)
 
 
 def spikes(name, x, limit=None):

@@ -119,3 +119,27 @@ def make_case(seed, effects=(), sensor_faults=(), duration=20.0, rate=1000.0, ki
                 noise_rms=nr, contributions={k: v / scale for k, v in contrib.items()},
                 contributions_n=contrib, driver_contribution=drv / scale, clean=clean,
                 args=args)
+
+
+def _noise(case):
+    """Force noise (measured - delayed/filtered clean) and force std over the valid rows."""
+    info = case.sensor['info']
+    valid = np.asarray(info['valid'], dtype=bool)
+    force = np.asarray(case.columns['force'], dtype=float)
+    return (force - info['reference_force'])[valid], float(np.std(force[valid]))
+
+
+def transfer_floor(train, unseen):
+    """NRMSE that a perfect model fitted on ``train`` reaches on ``unseen`` (same damper).
+
+    ``unseen.floor_nrmse`` is the noise about the unseen record's own mean, but a fitted model
+    carries the training record's mean noise (offset plus the mean of its drift) in its static
+    force ``f0``; a drifting force channel shifts that mean from record to record, and no
+    model can know the shift. So: RMS of ``e_unseen - mean(e_train)`` over the unseen valid
+    rows, over the unseen force std. Equal to ``unseen.floor_nrmse`` without drift.
+    """
+    e_t, _ = _noise(train)
+    e_u, s_u = _noise(unseen)
+    if not (e_t.size and e_u.size and s_u > 0):
+        return float('nan')
+    return float(np.sqrt(np.mean((e_u - np.mean(e_t)) ** 2)) / s_u)
