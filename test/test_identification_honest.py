@@ -226,3 +226,13 @@ def test_soft_series_spring_is_named_with_its_stiffness_not_a_delay():
     assert res.final.eta['k_series'] == pytest.approx(case.truth.k_series, rel=0.1)
     unseen = case.unseen()
     assert est.score(_record(unseen.columns)) < 1.5 * unseen.floor_nrmse
+
+
+def test_noise_floor_is_bounded_by_a_models_heldout_error():
+    """A repeated-input figure above a model's held-out error is memory, not noise."""
+    f = noise.NoiseFloor(rms=30.0, nrmse=0.3, pairs=500, max_distance=0.01)
+    low = noise.bounded(f, 3.0)
+    assert low.bounded and low.rms == 3.0 and low.repeats_rms == 30.0
+    assert low.nrmse == pytest.approx(0.03) and 'bounds any noise floor' in low.method
+    assert noise.bounded(f, 40.0) is f and not f.bounded
+    assert noise.bounded(None, 3.0) is None

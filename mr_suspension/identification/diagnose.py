@@ -1007,7 +1007,7 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
                    'source': 'inner folds (no outer blocks)'}
     heldout['baseline_nrmse'] = float(np.sqrt(heldout['baseline_mse']) / heldout['std'])
     heldout['extended_nrmse'] = float(np.sqrt(heldout['extended_mse']) / heldout['std'])
-    floor = floor_job()
+    floor = noise.bounded(floor_job(), float(np.sqrt(heldout['extended_mse'])))
     ambiguous = tuple(p for p in ambiguous if set(p) & set(order))
     phys = [e for e in order if locations[e] != 'sensor']
     verdict = 'none' if not phys else ('ambiguous' if ambiguous else 'named')

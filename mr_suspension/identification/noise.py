@@ -12,14 +12,18 @@ correlation) does not look like signal and at most ``t_max`` so that slow drift 
 stay small. No fitted model enters: the floor is what no model of the inputs can explain.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 
 @dataclass(frozen=True)
 class NoiseFloor:
-    """Estimated noise floor: ``rms`` [N], ``nrmse`` (rms / std of the force), pairs used."""
+    """Estimated noise floor: ``rms`` [N], ``nrmse`` (rms / std of the force), pairs used.
+
+    ``repeats_rms`` [N] is the repeated-input figure itself; ``rms`` is lower only when
+    ``bounded`` (see :func:`bounded`).
+    """
 
     rms: float
     nrmse: float
@@ -29,6 +33,26 @@ class NoiseFloor:
                    '(50 ms to 12 s before) whose stroke, stroke rate and current over the last '
                    '0.2 s match best; noise RMS = median |force difference| / (0.6745 sqrt 2) '
                    'over the pairs within max_distance (fraction of the input spread)')
+    repeats_rms: float = float('nan')
+    bounded: bool = False
+
+
+def bounded(floor, heldout_rms):
+    """Bound a repeated-input floor by a model's held-out RMS error [N].
+
+    With independent noise a model's expected held-out MSE is the noise variance plus its own
+    error, so no noise floor lies above it. A repeated-input figure that does is not noise:
+    the force keeps a memory longer than the 0.2 s history (a soft series spring's relaxation,
+    heating, a drifting load cell between the paired samples). Returns the floor, lowered to
+    ``heldout_rms`` and marked ``bounded`` in that case.
+    """
+    if floor is None or not floor.rms > heldout_rms > 0:
+        return floor
+    return replace(floor, rms=float(heldout_rms), nrmse=floor.nrmse * heldout_rms / floor.rms,
+                   repeats_rms=floor.rms, bounded=True,
+                   method=floor.method + "; the repeats gave a higher figure than the model's "
+                   'held-out error, which bounds any noise floor: lowered to it (the force keeps '
+                   'a memory longer than the 0.2 s history)')
 
 
 def _best_repeats(x, v, i, rate, t_min, t_max, window):

@@ -121,7 +121,9 @@ def build(res, records, validate=(), elapsed=None):
                      'extended_nrmse': _nrmse(float(np.sum(res.final_exact * w)), ds.f_std)},
         'noise_floor': None if floor is None else {
             'rms_n': floor.rms, 'nrmse': floor.nrmse, 'pairs': floor.pairs,
-            'max_history_distance': floor.max_distance, 'method': floor.method},
+            'max_history_distance': floor.max_distance, 'method': floor.method,
+            'bounded_by_heldout_error': floor.bounded,
+            'repeated_input_rms_n': floor.repeats_rms if floor.bounded else floor.rms},
         'residual_map': res.residual_map,
         'method': {
             'heldout': f'{ds.n_folds}-fold cross-validation over contiguous blocks on the '
@@ -364,6 +366,10 @@ def markdown(report, figures):
     floor = (f' Noise floor (from repeated inputs) {nf["nrmse"]:.4f}: extended / floor '
              f'{ho["extended_over_floor"]:.2f}.' if nf else
              ' Noise floor not estimable (the inputs never repeat).')
+    if nf and nf.get('bounded_by_heldout_error'):
+        floor += (f' (The repeats gave {nf["repeated_input_rms_n"]:.4g} N, above the extended '
+                  "model's held-out error, which bounds any noise floor: the force keeps a "
+                  'memory longer than the 0.2 s input history.)')
     lines = ['# Damper diagnosis', '',
              f'**Verdict: {report["verdict"]}.** Held-out NRMSE ({ho["source"]}) baseline '
              f'{report["baseline"]["heldout_nrmse"]:.4f}, extended '
