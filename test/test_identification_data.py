@@ -195,8 +195,8 @@ def test_measured_current_noise_is_cleaned_by_the_command_through_the_driver():
             'current': coil + noise * rng.standard_normal(cmd.size)}
     meas = dataio.build_record('noisy-coil', cols)
     drv = diagnose.identify_driver([meas])
-    clean, source = diagnose.denoise_current(meas, drv)
-    assert source.startswith('measured coil current fused with the command')
+    clean = diagnose.denoise_current(meas, drv)
+    assert clean.meta['current_source'].startswith('measured coil current fused with the command')
     assert np.std(clean.i_in - coil) < 0.2 * noise
     # A saved model carries the driver, and predict cleans a new record's current the same way.
     from mr_suspension.core.extended import ExtendedDamperParams
@@ -214,13 +214,13 @@ def test_measured_current_noise_is_cleaned_by_the_command_through_the_driver():
     coil2 = _lag(_lag(cmd, dt, 0.004), dt, 0.004)
     cols2 = dict(cols, current=coil2 + noise * rng.standard_normal(cmd.size))
     meas2 = dataio.build_record('two-lag-coil', cols2)
-    clean2, _ = diagnose.denoise_current(meas2, diagnose.identify_driver([meas2]))
+    clean2 = diagnose.denoise_current(meas2, diagnose.identify_driver([meas2]))
     assert np.std(clean2.i_in - coil2) < 0.8 * np.std(meas2.i_in - coil2)
     # Nothing to do: no measured current, no driver, or a noise-free coil current.
-    assert diagnose.denoise_current(rec, drv) == (rec, None)
-    assert diagnose.denoise_current(meas, None) == (meas, None)
+    assert diagnose.denoise_current(rec, drv) is rec
+    assert diagnose.denoise_current(meas, None) is meas
     exact = dataio.build_record('exact-coil', dict(cols, current=coil))
-    assert diagnose.denoise_current(exact, diagnose.identify_driver([exact]))[1] is None
+    assert diagnose.denoise_current(exact, diagnose.identify_driver([exact])) is exact
 
 
 def test_rosbag2_from_node_set_topics(tmp_path):

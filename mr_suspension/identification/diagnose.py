@@ -188,26 +188,26 @@ def denoise_current(record, driver):
     both: its band is found as a motion's (``sensors.motion_band``: where its spectrum stands
     above its white level, at least ``sensors.BAND_MIN``), and ``i = i_d + LP(r)`` (zero-phase,
     4th order) keeps the model error in that band and drops the noise above it. A driver model
-    that misses fast dynamics widens the band and so removes less. Returns ``(record,
-    source)``: the record with the fused ``i_in`` and a description, or the record as it is
-    and None without a measured current, a command or a driver, or when the noise above the
-    band is below ``CURRENT_NOISE_MIN`` of the current's range.
+    that misses fast dynamics widens the band and so removes less. Returns the record with
+    the fused ``i_in`` and a description in ``meta['current_source']``, or the record itself
+    without a measured current, a command or a driver, or when the noise above the band is
+    below ``CURRENT_NOISE_MIN`` of the current's range.
     """
     if (not driver or record.input_kind != 'current' or record.command is None
             or not np.ptp(record.command) > 0):
-        return record, None
+        return record
     i_d = engine.field_current(np.ascontiguousarray(record.command, dtype=float), record.dt,
                                driver['dead_time'], driver['tau_rise'], driver['tau_fall'])
     r = record.i_in - i_d
     cut, white = sensors.motion_band(r, record.dt)
     if not white > CURRENT_NOISE_MIN * float(np.ptp(record.i_in)):
-        return record, None
+        return record
     cut = sensors.BAND_MIN if cut is None else cut
     i_f = i_d + sensors.lowpass(r, record.dt, cut, order=4)
     source = (f'measured coil current fused with the command through the fitted driver '
               f'(difference low-passed at {cut:.3g} Hz, zero-phase; {1e3 * white:.3g} mA RMS '
               'white noise removed)')
-    return replace(record, i_in=i_f, meta={**record.meta, 'current_source': source}), source
+    return replace(record, i_in=i_f, meta={**record.meta, 'current_source': source})
 
 
 def identify_driver(records, nominal=None):
@@ -928,8 +928,7 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     floor_job = _background(lambda: _floor(full))
     # The driver first: the command through it cleans the measured coil current's noise.
     driver = identify_driver(full, nominal_driver)
-    full, current_notes = zip(*(denoise_current(r, driver) for r in full))
-    full = list(full)
+    full = [denoise_current(r, driver) for r in full]
     recs = full
     if search_rate:
         recs = [dataio.decimate(r, max(1, int(1.0 / (r.dt * search_rate) + 1e-9)))
@@ -938,8 +937,9 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     untestable, notes = testability(recs)
     if long_note:
         notes['long_records'] = long_note
-    if any(current_notes):
-        notes['current_source'] = {r.name: c for r, c in zip(full, current_notes) if c}
+    cleaned = {r.name: r.meta['current_source'] for r in full if 'current_source' in r.meta}
+    if cleaned:
+        notes['current_source'] = cleaned
     physics = [e for e in effects if e in engine.EFFECTS and e not in untestable]
     # A force-channel low-pass rolls off above the search rate's band: judged at the full rate.
     sens = [e for e in effects if e in engine.SENSOR_EFFECTS and e not in FULL_RATE_SENSORS]
@@ -1066,7 +1066,7 @@ class Diagnosis:
         """Force [N] of the extended (or ``'baseline'``) model on a record, as measured."""
         res = self._check()
         fit = res.final if model == 'extended' else res.baseline
-        record = denoise_current(record, res.driver)[0]
+        record = denoise_current(record, res.driver)
         return engine.simulate(record, fit.params(), fit.dynamics(), **fit.channel)
 
     def score(self, record, model='extended'):

@@ -112,5 +112,5 @@ def predict(model, record):
         # As in the fit: a measured coil current is cleaned by the command through the
         # fitted driver (diagnose.denoise_current).
         from mr_suspension.identification.diagnose import denoise_current
-        record = denoise_current(record, model['driver'])[0]
+        record = denoise_current(record, model['driver'])
     return engine.simulate(record, params, fitted_dynamics(model['current_dynamics']))

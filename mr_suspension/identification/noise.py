@@ -21,8 +21,8 @@ import numpy as np
 class NoiseFloor:
     """Estimated noise floor: ``rms`` [N], ``nrmse`` (rms / std of the force), pairs used.
 
-    ``repeats_rms`` [N] is the repeated-input figure itself; ``rms`` is lower only when
-    ``bounded`` (see :func:`bounded`).
+    ``repeats_rms`` [N] is the repeated-input figure itself (default: ``rms``); ``rms`` is
+    lower only when a model's held-out error bounded it (:func:`bounded`).
     """
 
     rms: float
@@ -33,8 +33,17 @@ class NoiseFloor:
                    '(50 ms to 12 s before) whose stroke, stroke rate and current over the last '
                    '0.2 s match best; noise RMS = median |force difference| / (0.6745 sqrt 2) '
                    'over the pairs within max_distance (fraction of the input spread)')
-    repeats_rms: float = float('nan')
-    bounded: bool = False
+    repeats_rms: float = None
+
+    def __post_init__(self):
+        """Set ``repeats_rms`` to ``rms`` when not given."""
+        if self.repeats_rms is None:
+            object.__setattr__(self, 'repeats_rms', self.rms)
+
+    @property
+    def bounded(self):
+        """True when a model's held-out error lowered the repeated-input figure."""
+        return self.rms < self.repeats_rms
 
 
 def bounded(floor, heldout_rms):
@@ -49,7 +58,7 @@ def bounded(floor, heldout_rms):
     if floor is None or not floor.rms > heldout_rms > 0:
         return floor
     return replace(floor, rms=float(heldout_rms), nrmse=floor.nrmse * heldout_rms / floor.rms,
-                   repeats_rms=floor.rms, bounded=True,
+                   repeats_rms=floor.rms,
                    method=floor.method + "; the repeats gave a higher figure than the model's "
                    'held-out error, which bounds any noise floor: lowered to it (the force keeps '
                    'a memory longer than the 0.2 s history)')

@@ -123,7 +123,7 @@ def build(res, records, validate=(), elapsed=None):
             'rms_n': floor.rms, 'nrmse': floor.nrmse, 'pairs': floor.pairs,
             'max_history_distance': floor.max_distance, 'method': floor.method,
             'bounded_by_heldout_error': floor.bounded,
-            'repeated_input_rms_n': floor.repeats_rms if floor.bounded else floor.rms},
+            'repeated_input_rms_n': floor.repeats_rms},
         'residual_map': res.residual_map,
         'method': {
             'heldout': f'{ds.n_folds}-fold cross-validation over contiguous blocks on the '

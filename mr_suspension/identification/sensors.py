@@ -200,7 +200,7 @@ def _held_runs(x, consistent=None, suspects=()):
     if not eq.any():
         return []
     own = eq & ~np.isin(x[1:], suspects) if len(suspects) else eq
-    p = float(own.mean()) if n > 1 else 0.0
+    p = float(own.mean())
     start, length = runs(eq)
     length = length + 1
     lmin = MIN_RUN
@@ -468,11 +468,10 @@ def fuse_velocity(x, v, dt):
     ``W = S_v / (S_v + w^2 S_x) = 1 / (1 + (f/f_c)^2)``, ``f_c = sqrt(S_v / S_x) / 2 pi``,
     and ``W`` is exactly the gain of a first-order Butterworth run forwards and backwards, so
     ``v_f = v + filtfilt_1(dx/dt - v)``: the difference holds no motion, only the two noises,
-    and the filter has no phase lag. The
-    white levels are the spectra's medians above 0.3 of the sampling rate (``_spectrum``).
-    Returns ``(v_f, f_c)``; ``(v, None)`` when either level is not measurable or ``f_c`` is
-    below ``FUSE_MIN``. With ``f_c`` above 0.45 of the sampling rate the derivative wins at
-    every frequency and is returned.
+    and the filter has no phase lag. The white levels are the spectra's medians above 0.3 of
+    the sampling rate (``_spectrum``). Returns ``(v_f, f_c)``; ``(v, None)`` when either
+    level is not measurable or ``f_c`` is below ``FUSE_MIN``. With ``f_c`` above 0.45 of the
+    sampling rate the derivative wins at every frequency and is returned.
     """
     sx, sv = _spectrum(x, dt), _spectrum(v, dt)
     if sx is None or sv is None or not (sx[2] > 0.0 and sv[2] > 0.0):

@@ -350,9 +350,7 @@ def columns(P, effects, eta):
         if mount:  # the damper's rate is the strut's: body-wheel rate + the mount's rate
             v = v + P.mount_q[_mount_key(eta)][sl]
         tv = np.tanh(v / eta['v_y'])
-        iy = i
-        if 'current_saturation' in effects:
-            iy = eta['i_sat'] * np.tanh(i / eta['i_sat'])
+        iy = _yield_current(i, effects, eta)
         damp = [v, i * v, tv, iy * tv]
         dn = ['c0', 'c1', 'fy0', 'fy1']
         if 'direction_asymmetry' in effects:
@@ -383,6 +381,11 @@ def columns(P, effects, eta):
         blocks.append(blk)
         names = cn
     return np.concatenate(blocks), names
+
+
+def _yield_current(i, effects, eta):
+    """Return the current the yield force sees: ``i_sat tanh(i / i_sat)`` or ``i``."""
+    return eta['i_sat'] * np.tanh(i / eta['i_sat']) if 'current_saturation' in effects else i
 
 
 def _motion(P, k, effects, eta):
@@ -507,8 +510,7 @@ def mount_rates(P, fit, eta=None):
     out = []
     for k, sl in enumerate(P.slices):
         _, v, i = _motion(P, k, fit.effects, eta)
-        iy = eta['i_sat'] * np.tanh(i / eta['i_sat']) if 'current_saturation' in fit.effects \
-            else i
+        iy = _yield_current(i, fit.effects, eta)
         cv = th.get('c0', 0.0) + th.get('c1', 0.0) * i
         fy = th.get('fy0', 0.0) + th.get('fy1', 0.0) * iy
         with np.errstate(all='ignore'):
