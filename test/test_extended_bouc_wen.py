@@ -62,7 +62,8 @@ def test_shape_parameters_change_the_loop_and_dahl_is_the_default():
 
 
 @pytest.mark.parametrize('kw', [{'hyst_n': 2.0, 'hyst_r': 0.3}, {'hyst_n': 3.0, 'hyst_r': -0.5},
-                                {'hyst_n': 1.3, 'hyst_weight': 0.4, 'k_series': 3e5}])
+                                {'hyst_n': 1.3, 'hyst_weight': 0.4, 'k_series': 3e5},
+                                {'hyst_n': 2.0, 'rho': 0.45}, {'hyst_weight': 0.5, 'rho': -0.45}])
 def test_bouc_wen_damper_only_dissipates(kw):
     """Work over whole cycles is positive, and the tangent matches a finite difference."""
     t, x, v, dt = _sine(4000, amp=0.01, freq=2.0)
@@ -80,6 +81,28 @@ def test_bouc_wen_damper_only_dissipates(kw):
         f1, df = extended_force(pa, s1, x[300], v[300] + dv, 0.7, dt)
         f2, _ = extended_force(pa, s2, x[300], v[300] + dv + 1e-7, 0.7, dt)
         assert df == pytest.approx((f2 - f1) / 1e-7, rel=2e-3, abs=1e-3)
+
+
+@pytest.mark.parametrize('rho', [0.35, -0.3])
+def test_direction_asymmetry_scales_the_yield_force_by_its_state(rho):
+    """``F_d = c u (1 + rho tanh(u/v_y)) + Fy z (1 + rho z)``, ``z`` from scipy's integrator.
+
+    Without a loop the law is the old ``(1 + rho tanh(u/v_y)) (c u + Fy y)``; with one the
+    yield force's scale follows the loop state through a reversal, not the rate.
+    """
+    t, x, v, dt = _sine(1500, amp=0.006, freq=1.5)
+    c, fy, vy, x_h = 700.0, 250.0, 0.004, 6e-4
+    i = np.zeros_like(t)
+    p = ExtendedDamperParams(c0=c, c1=0.0, fy0=fy, fy1=0.0, v_y=vy, x_h=x_h, hyst_n=2.0,
+                             hyst_r=0.2, rho=rho)
+    f = simulate_extended(p.to_array(), x, v, i, dt)[0]
+    z = _reference_state(v, dt, x_h, 2.0, 0.2)
+    ref = c * v * (1.0 + rho * np.tanh(v / vy)) + fy * z * (1.0 + rho * z)
+    assert np.max(np.abs(f - ref)) < 0.2
+    static = ExtendedDamperParams(c0=c, c1=0.0, fy0=fy, fy1=0.0, v_y=vy, rho=rho)
+    f = simulate_extended(static.to_array(), x, v, i, dt)[0]
+    y = np.tanh(v / vy)
+    np.testing.assert_allclose(f, (1.0 + rho * y) * (c * v + fy * y), rtol=1e-6, atol=1e-6)
 
 
 def test_parameter_checks_and_old_model_files():

@@ -3,9 +3,9 @@
 Force (stroke ``x``, + = extension; stroke rate ``v``; field current ``i``)::
 
     F   = F0 + kg1 x + kg2 x^2 + F_d(u)                   (gas spring k2 in parallel, seed 000)
-    F_d = M(u) [c(i) u + Fy(i) y(u)]                      (damping element, seed 003 eq. 5.2)
+    F_d = M_th [c(i) u A(u) + Fy(i) y (1 + rho y)]        (damping element, seed 003 eq. 5.2)
     c(i) = c0 + c1 i,  Fy(i) = fy0 + fy1 g(i),  g(i) = i_s tanh(i / i_s)   (saturation)
-    M(u) = (1 - kappa E) (1 + rho tanh(u / v_y))          (thermal fade, direction asymmetry)
+    M_th = 1 - kappa E,  A(u) = 1 + rho tanh(u / v_y)     (thermal fade, direction asymmetry)
     y(u) = S(u) = tanh(u / v_y), or w / (1 + |w|^n)^(1/n), w = u / v_y (yield shape, n = yield_n)
     y    = (1 - w_h) S(u) + w_h z                         (hysteresis: share w_h of the yield
     dz/dt = (u / x_h) [1 - |z|^n_h ((1 - r_h) sgn(u z) + r_h)]      force in a Bouc-Wen loop)
@@ -26,9 +26,14 @@ look-up, ``bw_table``) and ``xi0 = Z^-1(zeta)``; for Dahl it is the closed form
 ``z+ = sgn u + (z - sgn u) exp(-|u| dt / x_h)``.
 
 The state vector ``s`` (length ``EXT_NSTATE``, all zeros = at rest) holds
-``[z, F_d, E, u, y, M, g, dF_d/du]``; the last five are the step's intermediates, which the
-identification reads to build its regressors (and the next step's Newton predictor), so fitting
-and simulation share this one function.
+``[z, F_d, E, u, Y, M, g, dF_d/du]`` with ``Y = M_th y (1 + rho y)`` and ``M = M_th A(u)``
+(``F_d = M c u + Fy Y``); the last five are the step's intermediates, which the identification
+reads to build its regressors (and the next step's Newton predictor), so fitting and
+simulation share this one function. The asymmetry of the yield force follows the yield state
+``y`` (the sign of the force the plug carries), not the rate: with a loop, the yield force
+keeps its side's scale through a reversal until the loop turns it over (a rate-following
+scale steps it by ``2 rho Fy`` at every reversal). Without a loop ``y = tanh(u / v_y)`` and
+both forms are ``M_th A(u) (c u + Fy y)``.
 Current dynamics (dead time, lags) are not here: they belong to the driver (core.driver).
 """
 
@@ -249,7 +254,7 @@ def _hysteretic(p, z, u, dt):
 
 @njit(cache=True, fastmath=True, error_model='numpy')
 def _element(p, s, u, i, dt):
-    """Damping-element force ``F_d(u)``, ``dF_d/du``, intermediates (y, M, g), hysteretic state."""
+    """Damping-element force ``F_d(u)``, ``dF_d/du``, intermediates (Y, M, g), hysteretic state."""
     vy = p[P_VY]
     isat = p[P_ISAT]
     g = isat * fast_tanh(i / isat) if isat > 0.0 else i
@@ -279,11 +284,13 @@ def _element(p, s, u, i, dt):
     mth = 1.0 - p[P_KAPPA] * s[S_E]
     if mth < 0.05:
         mth = 0.05
+    rho = p[P_RHO]
     t = y if xh <= 0.0 and p[P_YN] <= 0.0 else fast_tanh(u / vy)
-    m = mth * (1.0 + p[P_RHO] * t)
-    dm = mth * p[P_RHO] * (1.0 - t * t) / vy
-    core = c * u + fy * y
-    return m * core, dm * core + m * (c + fy * dy), y, m, g, zh
+    m = mth * (1.0 + rho * t)
+    dm = mth * rho * (1.0 - t * t) / vy
+    yr = mth * (1.0 + rho * y) * y
+    dyr = mth * (1.0 + 2.0 * rho * y) * dy
+    return m * c * u + fy * yr, dm * c * u + m * c + fy * dyr, yr, m, g, zh
 
 
 @njit(cache=True, fastmath=True, error_model='numpy')
@@ -368,7 +375,7 @@ def extended_force(p, s, x, v, i, dt):
 
 @njit(cache=True, fastmath=True, error_model='numpy', nogil=True)
 def simulate_extended(p, x, v, i, dt):
-    """Run ``extended_force`` along a record from rest; return ``(F, u, y, M, g)`` arrays."""
+    """Run ``extended_force`` along a record from rest; return ``(F, u, Y, M, g)`` arrays."""
     n = x.shape[0]
     s = np.zeros(EXT_NSTATE)
     f = np.empty(n)

@@ -53,6 +53,7 @@ ASYM_GRID = np.array([1.0, 4.0, 15.0, 50.0, 160.0]) * 1e-3  # rise x fall [s]
 OE_SAMPLES = 2000  # window of the output-error start of force-dependent states
 OE_NFEV = 12
 HYST_FEV = 60  # evaluations of the joint search of a new hysteresis loop's shape
+SHARE = 'hyst_weight'  # the loop's share of the yield force: searched only on request (extra)
 OUTER = -2  # fold label of the untouched outer blocks
 THETA_NAMES = ('f0', 'c0', 'c1', 'fy0', 'fy1')
 GAS_NAMES = ('k_gas1', 'k_gas2')
@@ -188,6 +189,8 @@ class Dataset:
             return self.i_max * np.array([0.15, 0.25, 0.4, 0.6, 1.0, 1.6, 2.5, 4.0, 8.0])
         if name == 'x_h':
             return self.x_ref * np.logspace(-3, -0.3, 10)
+        if name == SHARE:
+            return np.array([0.1, 0.2, 0.35, 0.5, 0.7, 1.0])
         if name == 'hyst_n':
             return np.array([1.0, 1.5, 2.0, 3.0])
         if name == 'hyst_r':
@@ -239,7 +242,7 @@ def damper_params(effects, eta, theta):
         d['i_sat'] = eta['i_sat']
     if 'hysteresis' in effects:
         neutral = neutral_eta()
-        for n in EFFECT_PARAMS['hysteresis']:
+        for n in EFFECT_PARAMS['hysteresis'] + (SHARE,):
             d[n] = eta.get(n, neutral[n])
     if 'series_stiffness' in effects:
         d['k_series'] = eta['k_series']
@@ -311,9 +314,8 @@ def design(ds, effects, eta, theta_prev):
         if not np.max(np.abs(u)) <= 100.0 * np.max(np.abs(r.velocity)) + 1.0:
             # The element state ran away (a non-monotone element at this theta): no model.
             return np.full((ds.force.size, 7 if gas else 5), np.nan)
-        mu = m * u
-        my = m * y
-        c = [np.ones(r.n), mu, mu * i_f, my, my * g]
+        mu = m * u  # F_d = M c u + Fy Y (core.extended): Y carries its own multiplier
+        c = [np.ones(r.n), mu, mu * i_f, y, y * g]
         if gas:
             c += [r.displacement, r.displacement ** 2]
         x = np.column_stack(c)
@@ -487,6 +489,8 @@ class FitResult:
             return {'tau': float(self.eta['tau_lag'])}
         if effect == 'channel_delay':
             return {'delay': float(self.eta['delay'])}
+        if effect == 'hysteresis':  # with its share of the yield force (1 unless freed)
+            return {n: float(self.eta[n]) for n in EFFECT_PARAMS[effect] + (SHARE,)}
         return {n: float(self.eta[n]) for n in EFFECT_PARAMS[effect]}
 
 
@@ -566,13 +570,14 @@ def _search_order(effects, new):
 
 
 def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, joint=0,
-        local=(0.6, 0.8, 1.0, 1.25, 1.6), fixed=()):
+        local=(0.6, 0.8, 1.0, 1.25, 1.6), fixed=(), extra=()):
     """Fit one model by coordinate search over ``eta`` with linear ``theta`` at every point.
 
     ``start_eta``/``start_theta`` warm-start from a parent model; ``new`` are the effects
     whose parameters are searched on their full grid first (the others only locally);
     ``joint`` > 0 ends with a Nelder-Mead polish of that many evaluations on all
-    continuous parameters together; ``local`` are the factors of the local grids.
+    continuous parameters together; ``local`` are the factors of the local grids; ``extra``
+    are parameters outside the effects' own (``SHARE``) searched like a new effect's.
     """
     effects = tuple(effects)
     eta = dict(neutral_eta())
@@ -728,7 +733,8 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                 base_eta[n] = neutral_eta()[n]
         theta[:5] = CVResult(ds, design(ds, (), base_eta, theta), base_eta).theta[:5]
     ev(dict(eta))
-    names = [n for n in _search_order(effects, new) if n not in fixed]
+    names = [n for n in _search_order(effects, new) if n not in fixed] + list(extra)
+    new_names = _new_names(new) + list(extra)
     warm = start_eta is not None and len(new) < len(effects)
     if sweeps is None:
         sweeps = 2 if (len(names) > 1 or force_dep) and (not warm or new) else 1
@@ -754,7 +760,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                 ev({**e0, 'f_ch': float(fc), 'delay': e0['delay'] - gd + off * ds.dt_min})
     for sweep in range(sweeps):
         for name in names + ['v_y']:
-            if sweep == 0 and (name in _new_names(new) or start_eta is None
+            if sweep == 0 and (name in new_names or start_eta is None
                                or name not in start_eta):
                 grid = ds.grid(name)
                 if name in ('kappa',):
@@ -789,7 +795,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                 res = search(name, grid)
             refine(name, res)
             update_theta()
-    polish([n for n in names if n in _new_names(new) or n in ('dead_time', 'delay')] + ['v_y'])
+    polish([n for n in names if n in new_names or n in ('dead_time', 'delay')] + ['v_y'])
     lags = [n for n in ('tau_lag', 'tau_rise', 'tau_fall') if n in names]
     if 'dead_time' in names and lags:
         # Dead time and lag trade against each other at a constant mean delay: scan along
@@ -824,7 +830,8 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                     e[n] = float(math.exp(val))
             return ev(e).sse
 
-        step = np.array([0.3 if n == 'delay' else 0.15 for n in cont])
+        # A share of 1 can only fall: it steps inwards.
+        step = np.array([0.3 if n == 'delay' else -0.15 if n == SHARE else 0.15 for n in cont])
         simplex = np.vstack([z0] + [z0 + step[j] * np.eye(len(z0))[j]
                                     for j in range(len(z0))])
         optimize.minimize(obj, z0, method='Nelder-Mead',
@@ -832,10 +839,10 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                                    'xatol': 1e-3, 'fatol': 0.0})
         update_theta()
 
-    shape = [n for n in EFFECT_PARAMS['hysteresis'] if n in names]
-    if ('hysteresis' in new and len(shape) >= 2 and np.isfinite(state['best'].sse)
-            and state['best'].eta['x_h'] > 0):
-        # The loop's length, exponent, unloading shape and weight lie along curved valleys
+    shape = [n for n in EFFECT_PARAMS['hysteresis'] + (SHARE,) if n in names]
+    if (('hysteresis' in new or SHARE in extra) and len(shape) >= 2
+            and np.isfinite(state['best'].sse) and state['best'].eta['x_h'] > 0):
+        # The loop's length, exponent, unloading shape and share lie along curved valleys
         # that the coordinate steps crawl along: a joint search of the loop's shape.
         nelder(shape, HYST_FEV)
     cont = [n for n in names + ['v_y'] if n != 'dead_time'

@@ -30,7 +30,8 @@ EFFECT_TEXT = {
     'series_stiffness': 'compliance k1 in series with the damping element (seed 000)',
     'gas_spring': 'accumulator force kg1 x + kg2 x^2 (seed 000 k2)',
     'thermal_fade': 'force falling as (1 - kappa E) with stored heat E from dissipated energy',
-    'direction_asymmetry': 'different force in rebound and compression, (1 + rho tanh(v/v_y))',
+    'direction_asymmetry': 'different force in rebound and compression: viscous force x '
+                           '(1 + rho tanh(v/v_y)), yield force x (1 + rho y)',
     'yield_shape': 'yield sigmoid w / (1 + |w|^n)^(1/n) instead of tanh(w), w = v / v_y',
 }
 
