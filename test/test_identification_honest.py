@@ -111,6 +111,69 @@ def test_anti_alias_filter_alone_is_a_sensor_finding_not_a_current_lag():
     assert rep['extended']['force_channel_cutoff_hz'] == pytest.approx(res.channel_filter)
 
 
+def test_channel_delay_with_a_sample_of_dead_time_is_not_named_a_filter():
+    """A 1.17 ms force-channel delay, command only (the truth's driver lag: a sample late).
+
+    The filter stage ran before the current timing, and a 185 Hz low-pass plus 0.5 ms drew
+    the delay and part of the dead time; named with the dead time, the filter must pay over
+    its nested delay, and here it does not.
+    """
+    case = cases.make_case(100147, (), sensor_faults=None, duration=12.0,
+                           measured_current=None)
+    assert case.sensor['spec'].faults == ('clipping', 'channel_delay')
+    res = diagnose.run([_record(case.columns)])
+    assert 'channel_delay' in res.causes and 'channel_filter' not in res.causes
+    assert res.final.eta['delay'] == pytest.approx(case.sensor['spec'].force_delay, abs=1e-4)
+
+
+def test_filter_reduced_to_its_delay_keeps_one_delay():
+    """A 3.9 ms channel delay on a Bouc-Wen damper with a current lag (truth integrator).
+
+    Delay and filter were both kept until the current lag was named; the filter reduced to
+    its nested delay must leave one ``channel_delay``, not two.
+    """
+    case = cases.make_case(236, ('current_lag',), sensor_faults=None, duration=12.0,
+                           measured_current=None)
+    assert case.sensor['spec'].faults == ('channel_delay',)
+    res = diagnose.run([_record(case.columns)])
+    assert len(set(res.causes)) == len(res.causes)
+    assert 'channel_delay' in res.causes and 'channel_filter' not in res.causes
+    assert 'current_lag' in res.physical_causes
+    assert res.final.eta['delay'] == pytest.approx(case.sensor['spec'].force_delay, rel=0.2)
+
+
+def test_a_filter_worse_than_none_at_every_cut_off_is_not_named():
+    """A channel delay on a Bouc-Wen damper with a gas spring; no filter in the truth.
+
+    Every cut-off was worse than no filter, so the filter's fit ended at f_ch = 0 (off), yet
+    the refit of the other parameters gained 14 % (t 4.3) and a "filter" of 0 Hz was named.
+    """
+    case = cases.make_case(100070, ('gas_spring',), sensor_faults=None, duration=12.0,
+                           measured_current=None)
+    assert case.sensor['spec'].force_filter_hz == 0.0
+    res = diagnose.run([_record(case.columns)])
+    assert 'channel_filter' not in res.causes and 'channel_delay' in res.causes
+
+
+def test_anti_alias_filter_with_a_dead_time_stays_a_filter():
+    """150 Hz anti-alias filter and a one-sample dead time: the filter pays over a delay."""
+    from scipy import signal
+    case = cases.make_case(7, (), sensor_faults=(), duration=10.0, shape='bingham_tanh',
+                           sensor_clean=True, measured_current=False, driver_tau=0.0)
+    cols = dict(case.columns)
+    b, a = signal.butter(2, 150.0, fs=1000.0)
+    f = cols['force']
+    cols['force'] = signal.lfilter(b, a, f - f[0]) + f[0]
+    # The command is logged one sample early: the force answers a sample after it.
+    cmd = cols['current_command']
+    cols['current_command'] = np.concatenate([cmd[1:], cmd[-1:]])
+    res = diagnose.run([_record(cols)])
+    assert set(res.causes) == {'channel_filter', 'current_delay'}
+    assert res.channel_filter == pytest.approx(150.0, rel=0.15)
+    check = [s for s in res.steps if 'nested delay' in s.get('stage', '')]
+    assert len(check) == 1 and check[0]['candidates']['channel_filter']['accepted']
+
+
 def test_driver_dead_time_is_a_named_driver_cause():
     """Measured coil current 9 ms behind the command (nominal Wonder Box: 3 ms)."""
     cols, _ = _sine_record(5.0, seed=9)

@@ -14,6 +14,7 @@ resolve to the simpler one. Effects that the excitation cannot reveal are ``unte
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
+import math
 import os
 
 from numba import njit
@@ -36,6 +37,7 @@ PARTLY_FACTOR = 2.0  # extended held-out NRMSE above this many noise floors: par
 CURRENT_NOISE_MIN = 1e-3  # white current noise (share of its range) worth removing
 UPGRADE = 'current_lag->current_lag_asymmetric'
 FINE = ('current_delay', 'current_lag')  # current timing below the search rate's step
+TIMING = ('current_delay', 'current_lag', 'current_lag_asymmetric')
 FULL_RATE_SENSORS = ('channel_filter',)  # sensor effects judged at the full rate only
 T_FINE = 3.0  # fold t the extra full-rate test needs (after the selection: a stricter bar)
 JOBS = max(1, min(4, os.cpu_count() or 1))  # threads for independent fits (kernels drop the GIL)
@@ -796,11 +798,18 @@ def _fine_timing(ds, final, chosen, allowed, tick):
         final, chosen, step = _fine_stage(ds, final, chosen, filt, tick,
                                           'force channel low-pass (full rate)')
         steps.append(step)
-    if len([c for c in chosen if c not in engine.SENSOR_EFFECTS]) >= MAX_CAUSES:
-        return final, chosen, steps
-    cands = [e for e in FINE if e in allowed and e not in chosen and compatible(chosen, e)]
-    if not cands:
-        return final, chosen, steps
+    if len([c for c in chosen if c not in engine.SENSOR_EFFECTS]) < MAX_CAUSES:
+        cands = [e for e in FINE if e in allowed and e not in chosen and compatible(chosen, e)]
+        if cands:
+            final, chosen = _fine_current_timing(ds, final, chosen, cands, allowed, steps,
+                                                 tick)
+    if 'channel_filter' in chosen and any(c in TIMING for c in chosen):
+        final, chosen = _filter_over_delay(ds, final, chosen, steps, tick)
+    return final, chosen, steps
+
+
+def _fine_current_timing(ds, final, chosen, cands, allowed, steps, tick):
+    """Fine stage of the current timing, then a search-rate lag tried as a dead time."""
     final, chosen, step = _fine_stage(ds, final, chosen, cands, tick, 'fine timing (full rate)')
     steps.append(step)
     if 'added' not in step and 'current_lag' in chosen and 'current_delay' in allowed:
@@ -813,8 +822,32 @@ def _fine_timing(ds, final, chosen, allowed, tick):
         tick('fine timing: lag -> dead time')
         step['swap_lag_for_dead_time'] = round(fold_stats(alt.test, final.test)[0], 4)
         if alt.test.sum() < final.test.sum():
-            return alt, list(swap), steps
-    return final, chosen, steps
+            return alt, list(swap)
+    return final, chosen
+
+
+def _filter_over_delay(ds, final, chosen, steps, tick):
+    """Keep a force-channel low-pass over a plain delay only if it still pays.
+
+    The filter is judged before the current timing, and its roll-off at every current edge
+    also draws a sample of command-to-force dead time (two 1.2-1.4 ms channel delays were
+    named as 160-185 Hz filters plus a dead time). Once a timing cause is named, the filter is
+    checked against its nested reduction, a delay of the filter's group delay
+    ``sqrt(2) / (2 pi f_ch)`` (the physics kept), by the selection's rule. Returns
+    ``(final, chosen)``.
+    """
+    # The filter's delay is its own (a delay named before it is already in it): one delay.
+    swap = tuple(dict.fromkeys('channel_delay' if c == 'channel_filter' else c
+                               for c in chosen))
+    f_ch = final.eta['f_ch']
+    gd = math.sqrt(2.0) / (2.0 * math.pi * f_ch) if f_ch > 0 else 0.0
+    eta = {**final.eta, 'delay': final.eta['delay'] + gd, 'f_ch': 0.0}
+    alt = engine.fit(ds, swap, start_eta=eta, start_theta=final.theta, new=(), sweeps=1)
+    tick('force channel: low-pass or delay')
+    ok, _, entry = _judged(final.test, alt.test)
+    steps.append({'parent': list(swap), 'stage': 'force channel: low-pass over its nested '
+                  'delay (with the current timing)', 'candidates': {'channel_filter': entry}})
+    return (final, chosen) if ok else (alt, list(swap))
 
 
 def _fine_stage(ds, final, chosen, cands, tick, label):
@@ -842,7 +875,12 @@ def _fine_stage(ds, final, chosen, cands, tick, label):
                                   local=(0.25, 0.5, 1.0, 2.0, 4.0))
 
     pool = _parallel({e: (label + ': +' + e, child(e)) for e in cands}, tick)
-    best, _, stats = _choose(pool, final.test, final.prediction)
+    # A candidate whose every grid point was worse than none ends at its neutral value (a
+    # filter at f_ch = 0 is off): any gain is the parent's own refinement, not the effect.
+    neutral = engine.neutral_eta()
+    pool = {e: f for e, f in pool.items()
+            if any(f.eta[n] != neutral[n] for n in engine.EFFECT_PARAMS[e])}
+    best, _, stats = _choose(pool, final.test, final.prediction) if pool else (None, (), {})
     if best is not None and stats[best]['t'] < T_FINE:
         stats[best]['accepted'] = False
         best = None
