@@ -90,19 +90,25 @@ def test_channel_delay_alone_is_a_sensor_finding():
     assert res.verdict in ('none', 'partly_explained')
 
 
+def _filtered_force_columns(f_ch):
+    """Effect-free truth, ideal driver, the force through a causal Butterworth at ``f_ch``."""
+    from scipy import signal
+    case = cases.make_case(7, (), sensor_faults=(), duration=10.0, shape='bingham_tanh',
+                           sensor_clean=True, measured_current=False, driver_tau=0.0)
+    cols = dict(case.columns)
+    b, a = signal.butter(2, f_ch, fs=1000.0)
+    f = cols['force']
+    cols['force'] = signal.lfilter(b, a, f - f[0]) + f[0]
+    return cols
+
+
 def test_anti_alias_filter_alone_is_a_sensor_finding_not_a_current_lag():
     """Effect-free damper, ideal driver; the force through a causal 150 Hz Butterworth.
 
     Before the full-rate filter stage the roll-off at every current edge was named
     ``current_lag`` (tau 1.6 ms) on top of a 1.4 ms ``channel_delay``.
     """
-    from scipy import signal
-    case = cases.make_case(7, (), sensor_faults=(), duration=10.0, shape='bingham_tanh',
-                           sensor_clean=True, measured_current=False, driver_tau=0.0)
-    cols = dict(case.columns)
-    b, a = signal.butter(2, 150.0, fs=1000.0)
-    f = cols['force']
-    cols['force'] = signal.lfilter(b, a, f - f[0]) + f[0]
+    cols = _filtered_force_columns(150.0)
     res = diagnose.run([_record(cols)])
     assert 'channel_filter' in res.causes and res.locations['channel_filter'] == 'sensor'
     assert res.channel_filter == pytest.approx(150.0, rel=0.15)
@@ -157,13 +163,7 @@ def test_a_filter_worse_than_none_at_every_cut_off_is_not_named():
 
 def test_anti_alias_filter_with_a_dead_time_stays_a_filter():
     """150 Hz anti-alias filter and a one-sample dead time: the filter pays over a delay."""
-    from scipy import signal
-    case = cases.make_case(7, (), sensor_faults=(), duration=10.0, shape='bingham_tanh',
-                           sensor_clean=True, measured_current=False, driver_tau=0.0)
-    cols = dict(case.columns)
-    b, a = signal.butter(2, 150.0, fs=1000.0)
-    f = cols['force']
-    cols['force'] = signal.lfilter(b, a, f - f[0]) + f[0]
+    cols = _filtered_force_columns(150.0)
     # The command is logged one sample early: the force answers a sample after it.
     cmd = cols['current_command']
     cols['current_command'] = np.concatenate([cmd[1:], cmd[-1:]])
