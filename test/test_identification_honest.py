@@ -161,24 +161,6 @@ def test_a_filter_worse_than_none_at_every_cut_off_is_not_named():
     assert 'channel_filter' not in res.causes and 'channel_delay' in res.causes
 
 
-def test_a_refit_credited_to_a_0_hz_filter_goes_to_the_parent():
-    """A real 206 Hz anti-alias filter that no cut-off on the grid beats (the delay is kept).
-
-    The filter's fit ends at f_ch = 0 but its refit of the other parameters pays; discarding
-    it left the unseen record at 2.6x its floor, handing it to the parent gives 1.9x.
-    """
-    case = cases.make_case(100252, ('direction_asymmetry',), sensor_faults=None, duration=12.0,
-                           measured_current=None)
-    assert case.sensor['spec'].force_filter_hz > 0
-    est = diagnose.Diagnosis()
-    res = est.fit([_record(case.columns)])
-    stage = [s for s in res.steps if s.get('stage', '').startswith('force channel low-pass')]
-    assert stage and stage[0].get('parent_refined_by') == ['channel_filter']
-    assert res.physical_causes[0] == 'direction_asymmetry'
-    unseen = case.unseen()
-    assert est.score(_record(unseen.columns)) < 2.3 * cases.transfer_floor(case, unseen)
-
-
 def test_anti_alias_filter_with_a_dead_time_stays_a_filter():
     """150 Hz anti-alias filter and a one-sample dead time: the filter pays over a delay."""
     cols = _filtered_force_columns(150.0)

@@ -876,25 +876,16 @@ def _fine_stage(ds, final, chosen, cands, tick, label):
 
     pool = _parallel({e: (label + ': +' + e, child(e)) for e in cands}, tick)
     # A candidate whose every grid point was worse than none ends at its neutral value (a
-    # filter at f_ch = 0 is off): its gain is the parent's own refinement, not the effect.
-    # The parent takes that refinement and the other candidates are judged against it.
+    # filter at f_ch = 0 is off): any gain is the parent's own refinement, not the effect.
     neutral = engine.neutral_eta()
-    off = [e for e, f in pool.items()
-           if all(f.eta[n] == neutral[n] for n in engine.EFFECT_PARAMS[e])]
-    refined = min((pool.pop(e) for e in off), key=lambda f: f.test.sum(), default=None)
-    refined = refined if refined is not None and refined.test.sum() < final.test.sum() else None
-    if refined is not None:
-        final = engine.fit(ds, tuple(chosen), start_eta=refined.eta,
-                           start_theta=refined.theta, new=(), sweeps=1, local=(1.0,))
-        tick(label + ': parent refined')
+    pool = {e: f for e, f in pool.items()
+            if any(f.eta[n] != neutral[n] for n in engine.EFFECT_PARAMS[e])}
     best, _, stats = _choose(pool, final.test, final.prediction) if pool else (None, (), {})
     if best is not None and stats[best]['t'] < T_FINE:
         stats[best]['accepted'] = False
         best = None
     step = _step_record(chosen, stats)
     step['stage'] = label
-    if refined is not None:
-        step['parent_refined_by'] = off
     if best is None:
         return final, chosen, step
     added = list(chosen) + [best]
