@@ -14,7 +14,6 @@ resolve to the simpler one. Effects that the excitation cannot reveal are ``unte
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
-import math
 import os
 
 from numba import njit
@@ -733,7 +732,7 @@ def _hysteresis_share(ds, final, chosen, tick):
     child = engine.fit(ds, tuple(final.effects), start_eta=final.eta, start_theta=final.theta,
                        new=(), sweeps=1, extra=(engine.SHARE,))
     tick('hysteresis: share of the yield force')
-    ok, gain, entry = _judged(child.test, final.test)
+    ok, _, entry = _judged(child.test, final.test)
     entry = {**entry, 'hyst_weight': round(child.eta[engine.SHARE], 3)}
     step = {'stage': 'hysteresis share (nested)', 'parent': list(chosen),
             'candidates': {'hysteresis_share': entry}}
@@ -839,9 +838,8 @@ def _filter_over_delay(ds, final, chosen, steps, tick):
     # The filter's delay is its own (a delay named before it is already in it): one delay.
     swap = tuple(dict.fromkeys('channel_delay' if c == 'channel_filter' else c
                                for c in chosen))
-    f_ch = final.eta['f_ch']
-    gd = math.sqrt(2.0) / (2.0 * math.pi * f_ch) if f_ch > 0 else 0.0
-    eta = {**final.eta, 'delay': final.eta['delay'] + gd, 'f_ch': 0.0}
+    eta = {**final.eta, 'delay': final.eta['delay'] + engine.group_delay(final.eta['f_ch']),
+           'f_ch': 0.0}
     alt = engine.fit(ds, swap, start_eta=eta, start_theta=final.theta, new=(), sweeps=1)
     tick('force channel: low-pass or delay')
     ok, _, entry = _judged(final.test, alt.test)
@@ -1016,7 +1014,7 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
         chosen, final = _leading_force(ds, chosen, final, fits, drop_loss, steps, tick)
     if 'hysteresis' in chosen:
         final, share_step = _hysteresis_share(ds, final, chosen, tick)
-        steps = tuple(steps) + (share_step,)
+        steps.append(share_step)
     if len(chosen) == 1:
         drop_loss[chosen[0]] = fold_stats(final.test, base.test)[0]
     final_search = final

@@ -57,6 +57,7 @@ SHARE = 'hyst_weight'  # the loop's share of the yield force: searched only on r
 OUTER = -2  # fold label of the untouched outer blocks
 THETA_NAMES = ('f0', 'c0', 'c1', 'fy0', 'fy1')
 GAS_NAMES = ('k_gas1', 'k_gas2')
+LOOP_PARAMS = EFFECT_PARAMS['hysteresis'] + (SHARE,)  # the loop with its share (1 unless freed)
 
 
 @njit(cache=True, nogil=True)
@@ -242,7 +243,7 @@ def damper_params(effects, eta, theta):
         d['i_sat'] = eta['i_sat']
     if 'hysteresis' in effects:
         neutral = neutral_eta()
-        for n in EFFECT_PARAMS['hysteresis'] + (SHARE,):
+        for n in LOOP_PARAMS:
             d[n] = eta.get(n, neutral[n])
     if 'series_stiffness' in effects:
         d['k_series'] = eta['k_series']
@@ -254,6 +255,14 @@ def damper_params(effects, eta, theta):
     if 'yield_shape' in effects:
         d['yield_n'] = eta['yield_n']
     return ExtendedDamperParams(**{k: float(v) for k, v in d.items()})
+
+
+def group_delay(f_ch):
+    """Low-frequency group delay [s] of the 2nd-order Butterworth at ``f_ch`` [Hz] (0: none).
+
+    ``sqrt(2) / (2 pi f_ch)``: what a force-channel low-pass shares with a plain delay.
+    """
+    return math.sqrt(2.0) / (2.0 * math.pi * f_ch) if f_ch > 0 else 0.0
 
 
 @functools.lru_cache(maxsize=64)
@@ -489,8 +498,8 @@ class FitResult:
             return {'tau': float(self.eta['tau_lag'])}
         if effect == 'channel_delay':
             return {'delay': float(self.eta['delay'])}
-        if effect == 'hysteresis':  # with its share of the yield force (1 unless freed)
-            return {n: float(self.eta[n]) for n in EFFECT_PARAMS[effect] + (SHARE,)}
+        if effect == 'hysteresis':
+            return {n: float(self.eta[n]) for n in LOOP_PARAMS}
         return {n: float(self.eta[n]) for n in EFFECT_PARAMS[effect]}
 
 
@@ -755,7 +764,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
         # each cut-off is tried with the delay reduced by that much (and half a sample about).
         e0 = dict(cur_eta())
         for fc in ds.grid('f_ch'):
-            gd = math.sqrt(2.0) / (2.0 * math.pi * fc)
+            gd = group_delay(fc)
             for off in (-0.5, 0.0, 0.5):
                 ev({**e0, 'f_ch': float(fc), 'delay': e0['delay'] - gd + off * ds.dt_min})
     for sweep in range(sweeps):
@@ -839,7 +848,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                                    'xatol': 1e-3, 'fatol': 0.0})
         update_theta()
 
-    shape = [n for n in EFFECT_PARAMS['hysteresis'] + (SHARE,) if n in names]
+    shape = [n for n in LOOP_PARAMS if n in names]
     if (('hysteresis' in new or SHARE in extra) and len(shape) >= 2
             and np.isfinite(state['best'].sse) and state['best'].eta['x_h'] > 0):
         # The loop's length, exponent, unloading shape and share lie along curved valleys
