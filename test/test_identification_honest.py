@@ -174,6 +174,24 @@ def test_anti_alias_filter_with_a_dead_time_stays_a_filter():
     assert len(check) == 1 and check[0]['candidates']['channel_filter']['accepted']
 
 
+def test_anti_alias_filter_is_judged_against_the_current_lag_it_draws():
+    """A 183 Hz anti-alias filter on an effect-free damper; no lagging delay was kept.
+
+    The selection drew the filter's lag with a series spring, and the full-rate timing stage
+    named ``current_lag`` (40 %, t 3.2) for its roll-off at the current edges. Fitted on the
+    same parent, the filter explains more: it is named and the spring goes.
+    """
+    case = cases.make_case(100267, (), sensor_faults=None, duration=12.0,
+                           measured_current=None)
+    spec = case.sensor['spec']
+    assert 'anti_alias' in spec.faults and spec.force_delay == 0.0
+    res = diagnose.run([_record(case.columns)])
+    assert 'channel_filter' in res.causes and res.locations['channel_filter'] == 'sensor'
+    assert res.channel_filter == pytest.approx(spec.force_filter_hz, rel=0.1)
+    assert not set(res.physical_causes) & {'current_lag', 'current_delay', 'series_stiffness'}
+    assert len([s for s in res.steps if 'rival' in s.get('stage', '')]) == 1
+
+
 def test_driver_dead_time_is_a_named_driver_cause():
     """Measured coil current 9 ms behind the command (nominal Wonder Box: 3 ms)."""
     cols, _ = _sine_record(5.0, seed=9)

@@ -777,7 +777,7 @@ def _full_rate(ds, base, final, chosen, drop_loss, ds_search, final_search, tick
     return base, final, chosen
 
 
-def _fine_timing(ds, final, chosen, allowed, tick):
+def _fine_timing(ds, final, chosen, allowed, tick, lagging=True):
     """Judge what lies above the search rate's band, at the full rate, sensor first.
 
     A force-channel low-pass (anti-alias filter) rolls the force off above the search rate's
@@ -789,19 +789,26 @@ def _fine_timing(ds, final, chosen, allowed, tick):
     cannot see but that leaves an error at every current edge (``FINE``). Each stage fits its
     candidates on top of the final model and accepts by the selection's rule with a fold t of
     at least ``T_FINE`` (a second look at the data after the selection).
+    Without a lagging force channel (``lagging`` False) the low-pass is judged only as the
+    rival of a current timing cause this stage would add (``_edge_filter``).
     Returns ``(final, chosen, step records)``.
     """
     steps = []
     filt = [e for e in FULL_RATE_SENSORS if e in allowed and e not in chosen]
-    if filt:
+    if filt and lagging:
         final, chosen, step = _fine_stage(ds, final, chosen, filt, tick,
                                           'force channel low-pass (full rate)')
         steps.append(step)
+        filt = []
     if len([c for c in chosen if c not in engine.SENSOR_EFFECTS]) < MAX_CAUSES:
         cands = [e for e in FINE if e in allowed and e not in chosen and compatible(chosen, e)]
         if cands:
+            parent = (final, chosen)
             final, chosen = _fine_current_timing(ds, final, chosen, cands, allowed, steps,
                                                  tick)
+            if filt and 'added' in steps[-1]:
+                final, chosen = _edge_filter(ds, parent, (final, chosen), filt, cands,
+                                             allowed, steps, tick)
     if 'channel_filter' in chosen and any(c in TIMING for c in chosen):
         final, chosen = _filter_over_delay(ds, final, chosen, steps, tick)
     return final, chosen, steps
@@ -823,6 +830,31 @@ def _fine_current_timing(ds, final, chosen, cands, allowed, steps, tick):
         if alt.test.sum() < final.test.sum():
             return alt, list(swap)
     return final, chosen
+
+
+def _edge_filter(ds, parent, timed, filt, cands, allowed, steps, tick):
+    """Judge a current timing found at the full rate against the force-channel low-pass.
+
+    A low-pass of the force channel rolls off every fast force change; the largest are at the
+    current edges, where the error reads as a command-to-force dead time or lag of a sample
+    or two (records with a 180-350 Hz anti-alias filter and no lagging delay were named
+    ``current_lag`` or ``current_delay`` at t 3.2-4.1). The filter is fitted on the same
+    parent by the same stage; it replaces the timing cause when its held-out error is lower,
+    and the timing is then judged again on top of it. Returns ``(final, chosen)``.
+    """
+    final0, chosen0 = parent
+    f, c, step = _fine_stage(ds, final0, chosen0, filt, tick,
+                             'force channel low-pass (rival of the current timing)')
+    steps.append(step)
+    if 'added' not in step:
+        return timed
+    if f.test.sum() >= timed[0].test.sum():
+        step['rival_not_kept'] = step.pop('added')  # the timing cause explains more
+        return timed
+    cands = [e for e in cands if e not in c and compatible(c, e)]
+    if cands and len([e for e in c if e not in engine.SENSOR_EFFECTS]) < MAX_CAUSES:
+        f, c = _fine_current_timing(ds, f, c, cands, allowed, steps, tick)
+    return f, c
 
 
 def _filter_over_delay(ds, final, chosen, steps, tick):
@@ -1029,8 +1061,8 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
             # was kept (on clean records with noisy motion channels a low-pass of the
             # regressors pays as smoothing of the input noise, not as a sensor).
             lagging = 'channel_delay' in chosen and final.delay > 0
-            final, chosen, fine = _fine_timing(
-                ds, start, chosen, physics + sens + (full_sensors if lagging else []), tick)
+            final, chosen, fine = _fine_timing(ds, start, chosen, physics + sens + full_sensors,
+                                               tick, lagging)
             steps = tuple(steps) + tuple(fine)
             for e, loss in _fine_losses(fine).items():
                 if e in chosen:
