@@ -38,6 +38,9 @@ UPGRADE = 'current_lag->current_lag_asymmetric'
 FINE = ('current_delay', 'current_lag')  # current timing below the search rate's step
 TIMING = ('current_delay', 'current_lag', 'current_lag_asymmetric')
 FULL_RATE_SENSORS = ('channel_filter',)  # sensor effects judged at the full rate only
+# Thermal fade needs a record this long [s]. Its time-constant grid scales with the record and
+# the fold test decides; the old 15 s hid fades of up to 15x the noise in 12 s records.
+T_THERMAL = 5.0
 T_FINE = 3.0  # fold t the extra full-rate test needs (after the selection: a stricter bar)
 JOBS = max(1, min(4, os.cpu_count() or 1))  # threads for independent fits (kernels drop the GIL)
 NESTED = {('current_lag', 'current_lag_asymmetric')}
@@ -132,9 +135,10 @@ def testability(records):
         notes['driver_vs_fluid'] = ('no measured coil current: driver lag and fluid '
                                     '(demagnetisation) lag are one lumped current lag; record '
                                     'the coil current to split them')
-    if longest < 15.0:
+    if longest < T_THERMAL:
         untestable.append('thermal_fade')
-        notes['thermal'] = 'no record of 15 s or more: no sustained heating to observe'
+        notes['thermal'] = (f'no record of {T_THERMAL:g} s or more: no sustained heating to '
+                            'observe')
     freqs = set()
     for r in records:
         xs = r.displacement - np.mean(r.displacement)
