@@ -13,7 +13,13 @@ Force (stroke ``x``, + = extension; stroke rate ``v``; field current ``i``)::
     dE/dt = F_d u - E / tau_th                            (stored heat from dissipated energy)
 
 ``u`` is the damping-element velocity: ``u = v`` without series stiffness, else the root of
-the backward-Euler balance ``F_d(u) = F_d,prev + k1 dt (v - u)``. Every effect is off at its
+the BDF2 balance ``F_d(u) = a F_d,n-1 - b F_d,n-2 + beta k1 dt (v - u)`` (variable step,
+``w = dt_n / dt_n-1``: ``a = (1 + w)^2 / (1 + 2 w)``, ``b = w^2 / (1 + 2 w)``,
+``beta = (1 + w) / (1 + 2 w)``; 4/3, 1/3, 2/3 at a constant step; backward Euler on the
+first step). Backward Euler, used before, advances the spring's force by half a step
+(``(1 - z^-1) / dt ~ s exp(-s dt / 2)``), which a fit read as a force-channel delay of half a
+sample on records with a soft spring; BDF2 is second order and, unlike the trapezoidal rule,
+damps stiff springs instead of ringing. Every effect is off at its
 neutral value: ``i_s = 0``, ``x_h = 0``, ``k1 = 0``, ``kg1 = kg2 = 0``, ``kappa = 0``,
 ``rho = 0``. The hysteretic state is the normalised Bouc-Wen state (Wen 1976, Spencer et al.
 1997: ``|z| <= 1``, pre-yield length ``x_h``, exponent ``n_h >= 1``, ``r_h = gamma / (beta +
@@ -26,8 +32,9 @@ look-up, ``bw_table``) and ``xi0 = Z^-1(zeta)``; for Dahl it is the closed form
 ``z+ = sgn u + (z - sgn u) exp(-|u| dt / x_h)``.
 
 The state vector ``s`` (length ``EXT_NSTATE``, all zeros = at rest) holds
-``[z, F_d, E, u, Y, M, g, dF_d/du]`` with ``Y = M_th y (1 + rho y)`` and ``M = M_th A(u)``
-(``F_d = M c u + Fy Y``); the last five are the step's intermediates, which the identification
+``[z, F_d, E, u, Y, M, g, dF_d/du, F_d,n-1, dt_n-1]`` with ``Y = M_th y (1 + rho y)`` and
+``M = M_th A(u)`` (``F_d = M c u + Fy Y``; the last two are the BDF2 history); ``u`` to
+``dF_d/du`` are the step's intermediates, which the identification
 reads to build its regressors (and the next step's Newton predictor), so fitting and
 simulation share this one function. The asymmetry of the yield force follows the yield state
 ``y`` (the sign of the force the plug carries), not the rate: with a loop, the yield force
@@ -47,8 +54,8 @@ import numpy as np
 from mr_suspension.core.fastmath import fast_tanh
 from mr_suspension.core.validation import as_number, build, check_declared, param
 
-EXT_NSTATE = 8
-S_Z, S_FD, S_E, S_U, S_Y, S_M, S_G, S_DF = range(8)
+EXT_NSTATE = 10
+S_Z, S_FD, S_E, S_U, S_Y, S_M, S_G, S_DF, S_FD2, S_DTP = range(10)
 (P_F0, P_C0, P_C1, P_FY0, P_FY1, P_VY, P_ISAT, P_XH, P_K1, P_KG1, P_KG2, P_KAPPA, P_TAUTH,
  P_RHO, P_YN, P_HW, P_HN, P_HR) = range(18)
 P_TAB = 18  # Bouc-Wen table (bw_table) appended to the parameter array: [h_xi, zeta.., g..]
@@ -302,9 +309,14 @@ def extended_force(p, s, x, v, i, dt):
     """
     k1 = p[P_K1]
     if k1 > 0.0:
-        kdt = k1 * dt
         fprev = s[S_FD]
-        # Monotone root of h(u) = F_d(u) - F_prev - k1 dt (v - u) (h' = F_d' + k1 dt > 0):
+        kdt = k1 * dt
+        if s[S_DTP] > 0.0:  # BDF2 (variable step); backward Euler from rest
+            w = dt / s[S_DTP]
+            den = 1.0 + 2.0 * w
+            fprev = ((1.0 + w) ** 2 * fprev - w * w * s[S_FD2]) / den
+            kdt = kdt * (1.0 + w) / den
+        # Monotone root of h(u) = F_d(u) - F_prev - kdt (v - u) (h' = F_d' + kdt > 0):
         # a few Newton steps from the previous step's linearisation (its u and dF_d/du); if
         # they do not settle, bracket the root and finish with Newton safeguarded by bisection.
         u = s[S_U] + kdt * (v - s[S_U]) / (s[S_DF] + kdt)
@@ -362,7 +374,9 @@ def extended_force(p, s, x, v, i, dt):
     force = p[P_F0] + p[P_KG1] * x + p[P_KG2] * x * x + fd
     if p[P_XH] > 0.0:
         s[S_Z] = zh
+    s[S_FD2] = s[S_FD]
     s[S_FD] = fd
+    s[S_DTP] = dt
     if p[P_KAPPA] > 0.0:
         s[S_E] = s[S_E] * math.exp(-dt / p[P_TAUTH]) + fd * u * dt
     s[S_U] = u
