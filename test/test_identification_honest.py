@@ -175,21 +175,22 @@ def test_anti_alias_filter_with_a_dead_time_stays_a_filter():
 
 
 def test_anti_alias_filter_is_judged_against_the_current_lag_it_draws():
-    """A 183 Hz anti-alias filter on an effect-free damper; no lagging delay was kept.
+    """A 287 Hz anti-alias filter on a Bouc-Wen damper with a loop and a saturating current.
 
-    The selection drew the filter's lag with a series spring, and the full-rate timing stage
-    named ``current_lag`` (40 %, t 3.2) for its roll-off at the current edges. Fitted on the
-    same parent, the filter explains more: it is named and the spring goes.
+    No lagging delay is kept, so the filter was never judged, and the full-rate timing stage
+    named its roll-off at the current edges ``current_lag``. Fitted on the same parent as the
+    rival of that lag, the filter explains more: it is named and the lag is not.
     """
-    case = cases.make_case(100267, (), sensor_faults=None, duration=12.0,
-                           measured_current=None)
+    case = cases.make_case(257, ('current_saturation', 'hysteresis'), sensor_faults=None,
+                           duration=12.0, measured_current=None)
     spec = case.sensor['spec']
     assert 'anti_alias' in spec.faults and spec.force_delay == 0.0
     res = diagnose.run([_record(case.columns)])
     assert 'channel_filter' in res.causes and res.locations['channel_filter'] == 'sensor'
     assert res.channel_filter == pytest.approx(spec.force_filter_hz, rel=0.1)
-    assert not set(res.physical_causes) & {'current_lag', 'current_delay', 'series_stiffness'}
-    assert len([s for s in res.steps if 'rival' in s.get('stage', '')]) == 1
+    assert set(res.physical_causes) == {'hysteresis', 'current_saturation'}
+    rival = [s for s in res.steps if 'rival' in s.get('stage', '')]
+    assert len(rival) == 1 and rival[0]['added'] == 'channel_filter'
 
 
 @pytest.mark.parametrize('seed', [3, 4])
