@@ -16,7 +16,8 @@ Force (stroke ``x``, + = extension; stroke rate ``v``; field current ``i``)::
 the BDF2 balance ``F_d(u) = a F_d,n-1 - b F_d,n-2 + beta k1 dt (v - u)`` (variable step,
 ``w = dt_n / dt_n-1``: ``a = (1 + w)^2 / (1 + 2 w)``, ``b = w^2 / (1 + 2 w)``,
 ``beta = (1 + w) / (1 + 2 w)``; 4/3, 1/3, 2/3 at a constant step; backward Euler on the
-first step). Backward Euler, used before, advances the spring's force by half a step
+first step and when ``w > 2.4``, where variable-step BDF2 stops being zero-stable).
+Backward Euler, used before, advances the spring's force by half a step
 (``(1 - z^-1) / dt ~ s exp(-s dt / 2)``), which a fit read as a force-channel delay of half a
 sample on records with a soft spring; BDF2 is second order and, unlike the trapezoidal rule,
 damps stiff springs instead of ringing. Every effect is off at its
@@ -311,7 +312,9 @@ def extended_force(p, s, x, v, i, dt):
     if k1 > 0.0:
         fprev = s[S_FD]
         kdt = k1 * dt
-        if s[S_DTP] > 0.0:  # BDF2 (variable step); backward Euler from rest
+        # BDF2 (variable step; zero-stable for step ratios below 1 + sqrt 2); backward Euler
+        # from rest and after a step more than 2.4 times the last (a stalled caller).
+        if 0.0 < s[S_DTP] and dt <= 2.4 * s[S_DTP]:
             w = dt / s[S_DTP]
             den = 1.0 + 2.0 * w
             fprev = ((1.0 + w) ** 2 * fprev - w * w * s[S_FD2]) / den
