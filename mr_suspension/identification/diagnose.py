@@ -314,6 +314,11 @@ def _pad(theta):
     return out
 
 
+def _room(chosen):
+    """Return True while ``chosen`` holds fewer than ``MAX_CAUSES`` physical causes."""
+    return sum(c not in engine.SENSOR_EFFECTS for c in chosen) < MAX_CAUSES
+
+
 def _name(e):
     return 'current_lag_asymmetric' if e == UPGRADE else e
 
@@ -605,7 +610,7 @@ def _forward(ds, base, sensors, physics, tick):
             chosen.append(best)
         current = pool[best]
         fits[tuple(chosen)] = current
-        if len([c for c in chosen if c not in engine.SENSOR_EFFECTS]) >= MAX_CAUSES:
+        if not _room(chosen):
             break
         # Re-polish the parent so a child is not credited with the parent's own refinement.
         current = engine.fit(ds, tuple(chosen), start_eta=current.eta,
@@ -706,8 +711,7 @@ def _swaps(ds, chosen, fits, singles, stage_amb, tick):
         # Both may be present (e.g. hysteresis and series stiffness): the union, started
         # from the runner-up's own fit and searched jointly.
         union = tuple(chosen) + (b,)
-        n_phys = len([c for c in chosen if c not in engine.SENSOR_EFFECTS])
-        if n_phys < MAX_CAUSES and compatible(chosen, b) and b in singles:
+        if _room(chosen) and compatible(chosen, b) and b in singles:
             eta = dict(cur.eta)
             for n in engine.EFFECT_PARAMS[b]:
                 eta[n] = singles[b].eta[n]
@@ -803,15 +807,15 @@ def _fine_timing(ds, final, chosen, allowed, tick, lagging=True):
         final, chosen, step = _fine_stage(ds, final, chosen, filt, tick,
                                           'force channel low-pass (full rate)')
         steps.append(step)
-        filt = []
-    if len([c for c in chosen if c not in engine.SENSOR_EFFECTS]) < MAX_CAUSES:
+    rival = [] if lagging else filt  # not judged yet: only as the timing's rival
+    if _room(chosen):
         cands = [e for e in FINE if e in allowed and e not in chosen and compatible(chosen, e)]
         if cands:
             parent = (final, chosen)
             final, chosen = _fine_current_timing(ds, final, chosen, cands, allowed, steps,
                                                  tick)
-            if filt and 'added' in steps[-1]:
-                final, chosen = _edge_filter(ds, parent, (final, chosen), filt, cands,
+            if rival and 'added' in steps[-1]:
+                final, chosen = _edge_filter(ds, parent, (final, chosen), rival, cands,
                                              allowed, steps, tick)
     if 'channel_filter' in chosen and any(c in TIMING for c in chosen):
         final, chosen = _filter_over_delay(ds, final, chosen, steps, tick)
@@ -856,7 +860,7 @@ def _edge_filter(ds, parent, timed, filt, cands, allowed, steps, tick):
         step['rival_not_kept'] = step.pop('added')  # the timing cause explains more
         return timed
     cands = [e for e in cands if e not in c and compatible(c, e)]
-    if cands and len([e for e in c if e not in engine.SENSOR_EFFECTS]) < MAX_CAUSES:
+    if cands and _room(c):
         f, c = _fine_current_timing(ds, f, c, cands, allowed, steps, tick)
     return f, c
 
