@@ -353,6 +353,35 @@ def test_loop_share_of_the_yield_force_is_recovered_once_the_loop_is_named(stren
     assert est.score(_record(unseen.columns)) < 1.5 * unseen.floor_nrmse
 
 
+def test_static_yield_shape_is_judged_beside_a_freed_loop_share():
+    """Truth: a partial loop (share 0.51) beside an algebraic static yield ``w / sqrt(1 + w^2)``.
+
+    While the loop carries the whole yield force the static shape draws nothing, so the
+    selection keeps ``yield_shape`` and ``hysteresis`` apart. Once the share is freed the
+    static part is drawn again; its shape is judged on top (the algebraic exponent is 2).
+    """
+    case = cases.make_case(3, ('hysteresis',), sensor_faults=(), duration=12.0,
+                           shape='algebraic', strength=0.8, measured_current=False)
+    est = diagnose.Diagnosis()
+    res = est.fit([_record(case.columns)])
+    assert {'hysteresis', 'yield_shape'} <= set(res.physical_causes)
+    step = [s for s in res.steps if s.get('stage', '').startswith('hysteresis share')]
+    cand = step[0]['candidates']
+    assert cand['hysteresis_share']['accepted'] and cand['yield_shape']['accepted']
+    assert 1.5 < res.final.eta['yield_n'] < 2.5
+    assert res.final.eta['hyst_weight'] == pytest.approx(case.truth.hyst_weight, abs=0.1)
+    unseen = case.unseen()
+    assert est.score(_record(unseen.columns)) < 1.25 * unseen.floor_nrmse
+
+
+def test_compatible_counts_only_the_pairs_the_new_effect_makes():
+    """A nested pair already in a model (loop with its static shape) does not block others."""
+    assert not diagnose.compatible(['hysteresis'], 'yield_shape')
+    assert not diagnose.compatible(['yield_shape', 'gas_spring'], 'hysteresis')
+    assert not diagnose.compatible(['current_lag'], 'current_lag_asymmetric')
+    assert diagnose.compatible(['hysteresis', 'yield_shape'], 'current_lag')
+
+
 def test_direction_asymmetry_on_a_bouc_wen_damper_is_recovered():
     """Spencer Bouc-Wen truth whose rebound/compression scale follows the loop's force.
 

@@ -279,9 +279,13 @@ def identify_driver(records, nominal=None):
 
 
 def compatible(effects, e, exclusive=EXCLUSIVE):
-    """Return True if ``e`` may join ``effects`` (no two of one ``exclusive`` set)."""
-    s = set(effects) | {e}
-    return not any(len(s & ex) > 1 for ex in exclusive)
+    """Return True if ``e`` may join ``effects`` (``e`` shares no ``exclusive`` set with them).
+
+    Only the pairs ``e`` would make count: a set that already holds a nested pair (a loop
+    with a freed share and its static ``yield_shape``) may still grow.
+    """
+    others = set(effects) - {e}
+    return not any(e in ex and others & ex for ex in exclusive)
 
 
 def corr(a, b):
@@ -728,23 +732,38 @@ def _swaps(ds, chosen, fits, singles, stage_amb, tick):
     return chosen, ambiguous, swaps
 
 
-def _hysteresis_share(ds, final, chosen, tick):
+def _hysteresis_share(ds, final, chosen, physics, tick):
     """Free the loop's share of the yield force once ``hysteresis`` is named (nested upgrade).
 
     ``y = (1 - w_h) S(u) + w_h z``: the selection fits the loop with ``w_h = 1`` (the loop
     replaces the static yield curve). A searched share during the selection made the loop
     win on the vrths sine tests and cut the earthquake validation gain from 18 to 1 %
     (docs/diagnose.md), so the share is only freed on top of a loop the data already named,
-    and kept by the selection's rule on the inner folds. Returns ``(final, step record)``.
+    and kept by the selection's rule on the inner folds. With a share below 1 the static part
+    ``S`` is drawn again, so its own shape (``yield_shape``, exclusive with the loop while
+    ``w_h = 1``, where it draws nothing) is judged on top of the freed share by the same rule.
+    Returns ``(final, chosen, step record)``.
     """
     child = engine.fit(ds, tuple(final.effects), start_eta=final.eta, start_theta=final.theta,
                        new=(), sweeps=1, extra=(engine.SHARE,))
     tick('hysteresis: share of the yield force')
     ok, _, entry = _judged(child.test, final.test)
     entry = {**entry, 'hyst_weight': round(child.eta[engine.SHARE], 3)}
-    step = {'stage': 'hysteresis share (nested)', 'parent': list(chosen),
-            'candidates': {'hysteresis_share': entry}}
-    return (child if ok else final), step
+    cands = {'hysteresis_share': entry}
+    step = {'stage': 'hysteresis share (nested)', 'parent': list(chosen), 'candidates': cands}
+    if not ok:
+        return final, chosen, step
+    if 'yield_shape' not in physics or not _room(chosen):
+        return child, chosen, step
+    shaped = engine.fit(ds, tuple(child.effects) + ('yield_shape',), start_eta=child.eta,
+                        start_theta=child.theta, new=('yield_shape',), sweeps=1,
+                        extra=(engine.SHARE,))
+    tick('hysteresis share: static yield shape')
+    ok_s, _, entry_s = _judged(shaped.test, child.test)
+    cands['yield_shape'] = {**entry_s, 'yield_n': round(shaped.eta['yield_n'], 3)}
+    if ok_s:
+        return shaped, list(chosen) + ['yield_shape'], step
+    return child, chosen, step
 
 
 def _full_rate(ds, base, final, chosen, drop_loss, ds_search, final_search, tick):
@@ -1053,7 +1072,7 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
             and not final.delay < 0):  # a lead found already needs no second search
         chosen, final = _leading_force(ds, chosen, final, fits, drop_loss, steps, tick)
     if 'hysteresis' in chosen:
-        final, share_step = _hysteresis_share(ds, final, chosen, tick)
+        final, chosen, share_step = _hysteresis_share(ds, final, chosen, physics, tick)
         steps.append(share_step)
     if len(chosen) == 1:
         drop_loss[chosen[0]] = fold_stats(final.test, base.test)[0]
