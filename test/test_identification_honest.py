@@ -11,7 +11,7 @@ import pytest
 
 from mr_suspension.core.config import load_driver
 from mr_suspension.identification import data as dataio
-from mr_suspension.identification import diagnose, noise, report
+from mr_suspension.identification import diagnose, engine, noise, report
 from mr_suspension.truth import cases
 
 
@@ -372,6 +372,27 @@ def test_static_yield_shape_is_judged_beside_a_freed_loop_share():
     assert res.final.eta['hyst_weight'] == pytest.approx(case.truth.hyst_weight, abs=0.1)
     unseen = case.unseen()
     assert est.score(_record(unseen.columns)) < 1.25 * unseen.floor_nrmse
+
+
+@pytest.mark.parametrize('seed, shape, strength', [(4, 'algebraic', 0.55),
+                                                   (7, 'bingham_tanh', 0.5)])
+def test_new_partial_loop_finds_its_share_and_length(seed, shape, strength):
+    """Truth: a Bouc-Wen loop carrying a quarter of the yield force beside the static curve.
+
+    With the share at 1 the best loop is a tiny one that redraws the static curve, and the
+    share's steps from there found nothing (w = 1); a new loop whose share is searched
+    (``extra``) starts from a joint length x share grid.
+    """
+    case = cases.make_case(seed, ('hysteresis',), sensor_faults=(), duration=10.0,
+                           shape=shape, strength=strength, measured_current=False)
+    assert 0.2 < case.truth.hyst_weight < 0.3
+    ds = engine.Dataset([dataio.decimate(_record(case.columns), 4)], n_folds=5)
+    fit = engine.fit(ds, ('hysteresis',), new=('hysteresis',), extra=(engine.SHARE,))
+    assert fit.eta['hyst_weight'] == pytest.approx(case.truth.hyst_weight, abs=0.05)
+    assert fit.eta['x_h'] == pytest.approx(case.truth.x_h, rel=0.25)
+    assert diagnose.partial_loop(['yield_shape', 'gas_spring'], 'hysteresis')
+    assert not diagnose.partial_loop(['gas_spring'], 'hysteresis')
+    assert not diagnose.partial_loop(['yield_shape'], 'series_stiffness')
 
 
 def test_compatible_counts_only_the_pairs_the_new_effect_makes():

@@ -288,6 +288,17 @@ def compatible(effects, e, exclusive=EXCLUSIVE):
     return not any(e in ex and others & ex for ex in exclusive)
 
 
+def partial_loop(chosen, e):
+    """Return True if ``e`` joins ``chosen`` as a loop beside a named static yield shape.
+
+    ``y = (1 - w_h) S(u) + w_h z``: with ``w_h = 1`` the loop replaces the static curve, so
+    it is exclusive with ``yield_shape``; once that shape is named, a loop on top of it only
+    means a share ``w_h < 1`` of the yield force in the loop, searched with the loop's shape.
+    """
+    rest = [c for c in chosen if c != 'yield_shape']
+    return e == 'hysteresis' and len(rest) < len(chosen) and compatible(rest, e)
+
+
 def corr(a, b):
     """Correlation of two contributions (0 when either is constant)."""
     sa, sb = np.std(a), np.std(b)
@@ -390,12 +401,14 @@ def _background(fn):
 
 def _children(ds, chosen, candidates, current, tick):
     def child(e):
+        extra = (engine.SHARE,) if partial_loop(chosen, e) else ()
         return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
                                   start_theta=current.theta, new=(e,), sweeps=1,
-                                  fixed=SCREEN_FIXED)
+                                  fixed=SCREEN_FIXED, extra=extra)
 
     pool = _parallel({e: ('+'.join(list(chosen) + [e]), child(e)) for e in candidates
-                      if e not in chosen and compatible(chosen, e)}, tick)
+                      if e not in chosen and (compatible(chosen, e)
+                                              or partial_loop(chosen, e))}, tick)
     # Screening done with one sweep; the two most promising children get a second one.
 
     def again(f):
@@ -741,8 +754,9 @@ def _hysteresis_share(ds, final, chosen, physics, tick):
     (docs/diagnose.md), so the share is only freed on top of a loop the data already named,
     and kept by the selection's rule on the inner folds. With a share below 1 the static part
     ``S`` is drawn again, so its own shape (``yield_shape``, exclusive with the loop while
-    ``w_h = 1``, where it draws nothing) is judged on top of the freed share by the same rule.
-    Returns ``(final, chosen, step record)``.
+    ``w_h = 1``, where it draws nothing) is judged on top of the freed share by the same rule
+    (a loop that joined a named shape, ``partial_loop``, has it already). Returns
+    ``(final, chosen, step record)``.
     """
     child = engine.fit(ds, tuple(final.effects), start_eta=final.eta, start_theta=final.theta,
                        new=(), sweeps=1, extra=(engine.SHARE,))
@@ -753,7 +767,7 @@ def _hysteresis_share(ds, final, chosen, physics, tick):
     step = {'stage': 'hysteresis share (nested)', 'parent': list(chosen), 'candidates': cands}
     if not ok:
         return final, chosen, step
-    if 'yield_shape' not in physics or not _room(chosen):
+    if 'yield_shape' in chosen or 'yield_shape' not in physics or not _room(chosen):
         return child, chosen, step
     shaped = engine.fit(ds, tuple(child.effects) + ('yield_shape',), start_eta=child.eta,
                         start_theta=child.theta, new=('yield_shape',), sweeps=1,

@@ -758,6 +758,14 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
         for tr in ASYM_GRID:
             for tf in ASYM_GRID:
                 ev({**e0, 'tau_rise': float(tr), 'tau_fall': float(tf)})
+    if SHARE in extra and 'hysteresis' in new:
+        # A new partial loop: its length and share trade against each other (with the share
+        # at 1 the best loop is a tiny one that redraws the static curve, and the share's
+        # steps from there find nothing): a joint coarse grid first.
+        e0 = dict(cur_eta())
+        for xh in ds.grid('x_h'):
+            for w in ds.grid(SHARE):
+                ev({**e0, 'x_h': float(xh), SHARE: float(w)})
     if 'f_ch' in names and 'channel_filter' in new and 'delay' in names:
         # A low-pass delays the force by its group delay, sqrt(2) / (2 pi f_ch) at low
         # frequency (2nd-order Butterworth), which a delay found without it already holds:
