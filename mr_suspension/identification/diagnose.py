@@ -41,6 +41,7 @@ FULL_RATE_SENSORS = ('channel_filter',)  # sensor effects judged at the full rat
 # Thermal fade needs a record this long [s]. Its time-constant grid scales with the record and
 # the fold test decides; the old 15 s hid fades of up to 15x the noise in 12 s records.
 T_THERMAL = 5.0
+PERIODIC = 0.9  # velocity correlation one period later: the record repeats one cycle
 T_FINE = 3.0  # fold t the extra full-rate test needs (after the selection: a stricter bar)
 JOBS = max(1, min(4, os.cpu_count() or 1))  # threads for independent fits (kernels drop the GIL)
 NESTED = {('current_lag', 'current_lag_asymmetric')}
@@ -88,6 +89,43 @@ def _judged(child, parent):
     pooled, t, _ = fold_stats(child, parent)
     ok = bool(pooled >= G_MIN and t >= T_MIN)
     return ok, pooled, {'gain_mse': round(pooled, 4), 't': round(t, 2), 'accepted': ok}
+
+
+def periodicity(record):
+    """Correlation of the stroke velocity with itself one period later (1 = one cycle repeated).
+
+    The largest normalised autocorrelation of ``diff(x)`` past its first zero crossing, over lags
+    up to a third of the record. Repeated constant-amplitude cycles (the vrths sine tests:
+    0.93-0.98) sit near 1; mixed or broadband programmes well below (the benchmark's records
+    0.2-0.8, the vrths earthquake record 0.24).
+    """
+    x = np.asarray(record.displacement, dtype=float)
+    v = np.diff(x[np.isfinite(x)])
+    v = v - np.mean(v) if v.size else v
+    n = v.size
+    if n < 8 or not np.any(v):
+        return 1.0
+    ac = np.fft.irfft(np.abs(np.fft.rfft(v, 2 * n)) ** 2)[:n]
+    e = np.cumsum(v ** 2)
+    lags = np.arange(1, max(2, n // 3))
+    with np.errstate(invalid='ignore', divide='ignore'):
+        r = ac[lags] / np.sqrt((e[-1] - e[lags - 1]) * e[n - lags - 1])
+    neg = np.flatnonzero(r < 0)
+    if neg.size == 0:
+        return 1.0
+    return float(np.nanmax(r[neg[0]:]))
+
+
+def share_testable(records):
+    """Return True if some record is not one cycle repeated (``periodicity < PERIODIC``).
+
+    The loop's share of the yield force (a rate-independent element beside the rate-dependent
+    static curve) is not identifiable from repeated cycles: fitted on the vrths sine tests it
+    transfers across sine programmes and not to the broadband earthquake record
+    (docs/diagnose.md), and seed 002 finds models identified on sine-on-sine displacements
+    not generalised. It is searched only when a record holds other motion.
+    """
+    return any(periodicity(r) < PERIODIC for r in records)
 
 
 def testability(records):
@@ -152,6 +190,10 @@ def testability(records):
             else:
                 freqs.add(('broadband', len(freqs)))
     notes['distinct_motions'] = len(freqs)
+    if not share_testable(records):
+        notes['hysteresis_share'] = (f'every record repeats one cycle (velocity correlation one '
+                                     f'period later >= {PERIODIC:g}): a pre-yield loop is fitted '
+                                     'with the whole yield force, its share is untestable')
     if len(freqs) == 1:
         notes['single_motion'] = ('one frequency and amplitude only: hysteresis, series '
                                   'stiffness and gas spring can hardly be told apart')
@@ -288,7 +330,7 @@ def compatible(effects, e, exclusive=EXCLUSIVE):
     return not any(e in ex and others & ex for ex in exclusive)
 
 
-def partial_loop(chosen, e):
+def partial_loop(chosen, e, share=True):
     """Return True if ``e`` joins ``chosen`` as a loop beside a named static yield shape.
 
     ``y = (1 - w_h) S(u) + w_h z``: with ``w_h = 1`` the loop replaces the static curve, so
@@ -296,7 +338,7 @@ def partial_loop(chosen, e):
     means a share ``w_h < 1`` of the yield force in the loop, searched with the loop's shape.
     """
     rest = [c for c in chosen if c != 'yield_shape']
-    return e == 'hysteresis' and len(rest) < len(chosen) and compatible(rest, e)
+    return share and e == 'hysteresis' and len(rest) < len(chosen) and compatible(rest, e)
 
 
 def corr(a, b):
@@ -399,16 +441,16 @@ def _background(fn):
     return fut.result
 
 
-def _children(ds, chosen, candidates, current, tick):
+def _children(ds, chosen, candidates, current, tick, share=True):
     def child(e):
-        extra = (engine.SHARE,) if partial_loop(chosen, e) else ()
+        extra = (engine.SHARE,) if partial_loop(chosen, e, share) else ()
         return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
                                   start_theta=current.theta, new=(e,), sweeps=1,
                                   fixed=SCREEN_FIXED, extra=extra)
 
     pool = _parallel({e: ('+'.join(list(chosen) + [e]), child(e)) for e in candidates
                       if e not in chosen and (compatible(chosen, e)
-                                              or partial_loop(chosen, e))}, tick)
+                                              or partial_loop(chosen, e, share))}, tick)
     # Screening done with one sweep; the two most promising children get a second one.
 
     def again(f):
@@ -574,8 +616,11 @@ def backward(ds, chosen, fits, singles=None, drop_loss=None, skip=(), tick=None)
     return chosen, final
 
 
-def _forward(ds, base, sensors, physics, tick):
-    """Sensor stage, then forward selection of physical causes; return the selection state."""
+def _forward(ds, base, sensors, physics, tick, share=True):
+    """Sensor stage, then forward selection of physical causes; return the selection state.
+
+    ``share``: the loop's share of the yield force is testable (``share_testable``).
+    """
     fits = {(): base}
     steps = []
     chosen = []
@@ -599,10 +644,14 @@ def _forward(ds, base, sensors, physics, tick):
 
     singles = _parallel({e: (e, single(e)) for e in physics}, tick)
     if chosen and singles and current.delay > 0:
-        if not _lagging_force_pays(ds, base, singles, physics, steps, tick):
+        pays, loop = _lagging_force_pays(ds, base, singles, physics, steps, tick, share)
+        if not pays:
             chosen = [c for c in chosen if c not in sensors]
             current = base
-            singles = _parallel({e: (e, single(e)) for e in physics}, tick)
+            singles = _parallel({e: (e, single(e)) for e in physics
+                                 if loop is None or e != 'hysteresis'}, tick)
+            if loop is not None:
+                singles['hysteresis'] = loop
     parent0 = current
     candidates = list(physics) + [e for e in sensors if e not in chosen]
     stage_amb = []
@@ -633,19 +682,24 @@ def _forward(ds, base, sensors, physics, tick):
         current = engine.fit(ds, tuple(chosen), start_eta=current.eta,
                              start_theta=current.theta, new=())
         fits[tuple(chosen)] = current
-        pool = _children(ds, chosen, candidates, current, tick)
+        pool = _children(ds, chosen, candidates, current, tick, share)
     return chosen, fits, singles, steps, stage_amb, parent0
 
 
-def _lagging_force_pays(ds, base, singles, physics, steps, tick):
-    """Return True if a force lagging the motion still pays on top of the physics.
+def _lagging_force_pays(ds, base, singles, physics, steps, tick, share=True):
+    """Judge a force lagging the motion on top of the physics; return ``(pays, loop)``.
 
     A lagging force is also what a compliance or a pre-yield loop looks like to the baseline.
     The best physical single fitted with the delay (``singles``) is judged against the best
     of that single without it and the loop effects (series spring, pre-yield loop) searched
     afresh without it: started from the delay's fit they settle elsewhere (a soft spring,
-    k1 = 2.3e5 N/m, was found as a 13 ms delay and a loop). A force that leads the motion has
-    no physical explanation and is not judged here.
+    k1 = 2.3e5 N/m, was found as a 13 ms delay and a loop). Where the share is testable
+    (``share``), a delay that survives them must also pay on top of a *partial* loop,
+    ``y = (1 - w_h) S(u) + w_h z`` with the share searched: a loop carrying a fraction of the
+    yield force lags the force near every reversal like a sub-millisecond delay, which no
+    ``w_h = 1`` model draws. If the delay does not pay on top of it, that loop is returned as
+    the selection's ``hysteresis`` single (``loop``; else None). A force that leads the motion
+    has no physical explanation and is not judged here.
     """
     b = min(singles, key=lambda e: singles[e].test.sum())
     with_d = singles[b]
@@ -662,7 +716,19 @@ def _lagging_force_pays(ds, base, singles, physics, steps, tick):
     steps.append({'parent': [b], 'stage': 'channel_delay on top of the best physical '
                   'single, against the best single without it',
                   'candidates': {'channel_delay': entry}})
-    return ok
+    if not (ok and share and 'hysteresis' in physics):
+        return ok, None
+    loop = engine.fit(ds, ('hysteresis',), start_eta=base.eta, start_theta=base.theta,
+                      new=('hysteresis',), fixed=SCREEN_FIXED, extra=(engine.SHARE,))
+    loop_d = engine.fit(ds, ('channel_delay', 'hysteresis'), start_eta=loop.eta,
+                        start_theta=loop.theta, new=('channel_delay',))
+    tick('partial hysteresis with and without channel_delay')
+    ok, _, entry = _judged(loop_d.test, loop.test)
+    entry = {**entry, 'hyst_weight': round(loop.eta[engine.SHARE], 3)}
+    steps.append({'parent': ['hysteresis'], 'stage': 'channel_delay on top of a partial '
+                  'pre-yield loop (its share searched), against the loop without it',
+                  'candidates': {'channel_delay': entry}})
+    return ok, (None if ok else loop)
 
 
 def _leading_force(ds, chosen, final, fits, drop_loss, steps, tick):
@@ -755,8 +821,9 @@ def _hysteresis_share(ds, final, chosen, physics, tick):
     and kept by the selection's rule on the inner folds. With a share below 1 the static part
     ``S`` is drawn again, so its own shape (``yield_shape``, exclusive with the loop while
     ``w_h = 1``, where it draws nothing) is judged on top of the freed share by the same rule
-    (a loop that joined a named shape, ``partial_loop``, has it already). Returns
-    ``(final, chosen, step record)``.
+    (also when the loop entered with its share: ``partial_loop``, ``_lagging_force_pays``).
+    Run only where the share is testable (``share_testable``). Returns ``(final, chosen,
+    step record)``.
     """
     child = engine.fit(ds, tuple(final.effects), start_eta=final.eta, start_theta=final.theta,
                        new=(), sweeps=1, extra=(engine.SHARE,))
@@ -765,19 +832,21 @@ def _hysteresis_share(ds, final, chosen, physics, tick):
     entry = {**entry, 'hyst_weight': round(child.eta[engine.SHARE], 3)}
     cands = {'hysteresis_share': entry}
     step = {'stage': 'hysteresis share (nested)', 'parent': list(chosen), 'candidates': cands}
-    if not ok:
+    if ok:
+        final = child
+    # A loop that entered with its share (``partial_loop``, ``_lagging_force_pays``) has it.
+    if (final.eta[engine.SHARE] >= 1.0 or 'yield_shape' in chosen
+            or 'yield_shape' not in physics or not _room(chosen)):
         return final, chosen, step
-    if 'yield_shape' in chosen or 'yield_shape' not in physics or not _room(chosen):
-        return child, chosen, step
-    shaped = engine.fit(ds, tuple(child.effects) + ('yield_shape',), start_eta=child.eta,
-                        start_theta=child.theta, new=('yield_shape',), sweeps=1,
+    shaped = engine.fit(ds, tuple(final.effects) + ('yield_shape',), start_eta=final.eta,
+                        start_theta=final.theta, new=('yield_shape',), sweeps=1,
                         extra=(engine.SHARE,))
     tick('hysteresis share: static yield shape')
-    ok_s, _, entry_s = _judged(shaped.test, child.test)
+    ok_s, _, entry_s = _judged(shaped.test, final.test)
     cands['yield_shape'] = {**entry_s, 'yield_n': round(shaped.eta['yield_n'], 3)}
     if ok_s:
         return shaped, list(chosen) + ['yield_shape'], step
-    return child, chosen, step
+    return final, chosen, step
 
 
 def _full_rate(ds, base, final, chosen, drop_loss, ds_search, final_search, tick):
@@ -1075,8 +1144,9 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     tick = progress or (lambda *a, **k: None)
     base = engine.fit(ds, ())
     tick('baseline')
+    share = 'hysteresis_share' not in notes
     chosen, fits, singles, steps, stage_amb, parent0 = _forward(ds, base, sens, physics,
-                                                                tick)
+                                                                tick, share)
     base = fits[()]
     delay_kept = any(c in engine.SENSOR_EFFECTS for c in chosen)
     chosen, ambiguous, swaps = _swaps(ds, chosen, fits, singles, stage_amb, tick)
@@ -1085,7 +1155,7 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     if (delay_kept and any(c not in engine.SENSOR_EFFECTS for c in chosen)
             and not final.delay < 0):  # a lead found already needs no second search
         chosen, final = _leading_force(ds, chosen, final, fits, drop_loss, steps, tick)
-    if 'hysteresis' in chosen:
+    if 'hysteresis' in chosen and share:
         final, chosen, share_step = _hysteresis_share(ds, final, chosen, physics, tick)
         steps.append(share_step)
     if len(chosen) == 1:
