@@ -101,9 +101,11 @@ def periodicity(record):
     """
     x = np.asarray(record.displacement, dtype=float)
     v = np.diff(x[np.isfinite(x)])
-    v = v - np.mean(v) if v.size else v
     n = v.size
-    if n < 8 or not np.any(v):
+    if n < 8:
+        return 1.0
+    v = v - np.mean(v)
+    if not np.any(v):
         return 1.0
     ac = np.fft.irfft(np.abs(np.fft.rfft(v, 2 * n)) ** 2)[:n]
     e = np.cumsum(v ** 2)
@@ -441,7 +443,7 @@ def _background(fn):
     return fut.result
 
 
-def _children(ds, chosen, candidates, current, tick, share=True):
+def _children(ds, chosen, candidates, current, tick, share):
     def child(e):
         extra = (engine.SHARE,) if partial_loop(chosen, e, share) else ()
         return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
@@ -616,7 +618,7 @@ def backward(ds, chosen, fits, singles=None, drop_loss=None, skip=(), tick=None)
     return chosen, final
 
 
-def _forward(ds, base, sensors, physics, tick, share=True):
+def _forward(ds, base, sensors, physics, tick, share):
     """Sensor stage, then forward selection of physical causes; return the selection state.
 
     ``share``: the loop's share of the yield force is testable (``share_testable``).
@@ -686,7 +688,7 @@ def _forward(ds, base, sensors, physics, tick, share=True):
     return chosen, fits, singles, steps, stage_amb, parent0
 
 
-def _lagging_force_pays(ds, base, singles, physics, steps, tick, share=True):
+def _lagging_force_pays(ds, base, singles, physics, steps, tick, share):
     """Judge a force lagging the motion on top of the physics; return ``(pays, loop)``.
 
     A lagging force is also what a compliance or a pre-yield loop looks like to the baseline.
@@ -815,9 +817,10 @@ def _hysteresis_share(ds, final, chosen, physics, tick):
     """Free the loop's share of the yield force once ``hysteresis`` is named (nested upgrade).
 
     ``y = (1 - w_h) S(u) + w_h z``: the selection fits the loop with ``w_h = 1`` (the loop
-    replaces the static yield curve). A searched share during the selection made the loop
-    win on the vrths sine tests and cut the earthquake validation gain from 18 to 1 %
-    (docs/diagnose.md), so the share is only freed on top of a loop the data already named,
+    replaces the static yield curve) unless it enters as a partial loop (``partial_loop``,
+    ``_lagging_force_pays``). A share searched in every loop candidate made the loop win on
+    the vrths sine tests and cut the earthquake validation gain from 18 to 1 %
+    (docs/diagnose.md), so here the share is freed on top of a loop the data already named,
     and kept by the selection's rule on the inner folds. With a share below 1 the static part
     ``S`` is drawn again, so its own shape (``yield_shape``, exclusive with the loop while
     ``w_h = 1``, where it draws nothing) is judged on top of the freed share by the same rule
