@@ -50,6 +50,7 @@ FORCE_DEPENDENT = ('series_stiffness', 'thermal_fade')
 # Searched on a linear scale (may be 0 or < 0).
 LINEAR_PARAMS = ('rho', 'dead_time', 'delay', 'hyst_r')
 ASYM_GRID = np.array([1.0, 4.0, 15.0, 50.0, 160.0]) * 1e-3  # rise x fall [s]
+YIELD_VY = np.geomspace(0.4, 2.5, 11)  # v_y factors (steps of 1.2) of the joint yield grid
 OE_SAMPLES = 2000  # window of the output-error start of force-dependent states
 OE_NFEV = 12
 HYST_FEV = 60  # evaluations of the joint search of a new hysteresis loop's shape
@@ -766,6 +767,15 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
         for xh in ds.grid('x_h'):
             for w in ds.grid(SHARE):
                 ev({**e0, 'x_h': float(xh), SHARE: float(w)})
+    if 'yield_n' in names and 'yield_shape' in new:
+        # The sigmoid's exponent and its smoothing velocity trade against each other: a slow
+        # (arctan-like) tail at small n reaches half the yield force at w = 1 where tanh
+        # reaches 0.76, so at the tanh's v_y every small n looks worse than tanh and the
+        # exponent's 1-D steps stay at 0 (a clean arctan damper: 1 % gain found, 17 % there).
+        e0 = dict(cur_eta())
+        for n_y in ds.grid('yield_n'):
+            for f in YIELD_VY:
+                ev({**e0, 'yield_n': float(n_y), 'v_y': e0['v_y'] * f})
     if 'f_ch' in names and 'channel_filter' in new and 'delay' in names:
         # A low-pass delays the force by its group delay, sqrt(2) / (2 pi f_ch) at low
         # frequency (2nd-order Butterworth), which a delay found without it already holds:
@@ -775,10 +785,15 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
             gd = group_delay(fc)
             for off in (-0.5, 0.0, 0.5):
                 ev({**e0, 'f_ch': float(fc), 'delay': e0['delay'] - gd + off * ds.dt_min})
+    # A start whose v_y belongs to the algebraic sigmoid (a model with yield_shape) is no
+    # start for tanh's: v_y is searched on its whole grid (dropping the shape from an arctan
+    # damper's fit left tanh at the algebraic v_y, 3x too large: unseen 1.08 -> 1.36 floors).
+    reshaped = ('yield_shape' not in effects and bool(start_eta)
+                and start_eta.get('yield_n', 0.0) > 0)
     for sweep in range(sweeps):
         for name in names + ['v_y']:
             if sweep == 0 and (name in new_names or start_eta is None
-                               or name not in start_eta):
+                               or name not in start_eta or (name == 'v_y' and reshaped)):
                 grid = ds.grid(name)
                 if name in ('kappa',):
                     grid = np.concatenate([[0.0], grid])
