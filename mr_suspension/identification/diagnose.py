@@ -445,7 +445,7 @@ def _background(fn):
 
 def _children(ds, chosen, candidates, current, tick, share):
     def child(e):
-        extra = (engine.SHARE,) if partial_loop(chosen, e, share) else ()
+        extra = (engine.SHARE,) if share and e == 'hysteresis' else ()
         return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
                                   start_theta=current.theta, new=(e,), sweeps=1,
                                   fixed=SCREEN_FIXED, extra=extra)
@@ -641,8 +641,10 @@ def _forward(ds, base, sensors, physics, tick, share):
             fits[tuple(chosen)] = current
 
     def single(e):
+        extra = (engine.SHARE,) if share and e == 'hysteresis' else ()
         return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
-                                  start_theta=current.theta, new=(e,), fixed=SCREEN_FIXED)
+                                  start_theta=current.theta, new=(e,), fixed=SCREEN_FIXED,
+                                  extra=extra)
 
     singles = _parallel({e: (e, single(e)) for e in physics}, tick)
     if chosen and singles and current.delay > 0:
@@ -700,7 +702,9 @@ def _lagging_force_pays(ds, base, singles, physics, steps, tick, share):
     ``y = (1 - w_h) S(u) + w_h z`` with the share searched: a loop carrying a fraction of the
     yield force lags the force near every reversal like a sub-millisecond delay, which no
     ``w_h = 1`` model draws. If the delay does not pay on top of it, that loop is returned as
-    the selection's ``hysteresis`` single (``loop``; else None). A force that leads the motion
+    the selection's ``hysteresis`` single (``loop``; else None). A delay that survives that
+    too must pay on top of the partial loop and the best other single together (a loop with
+    a current lag or behind a soft spring lags the force twice). A force that leads the motion
     has no physical explanation and is not judged here.
     """
     b = min(singles, key=lambda e: singles[e].test.sum())
@@ -835,11 +839,12 @@ def _hysteresis_share(ds, final, chosen, physics, tick):
     """Free the loop's share of the yield force once ``hysteresis`` is named (nested upgrade).
 
     ``y = (1 - w_h) S(u) + w_h z``: the selection fits the loop with ``w_h = 1`` (the loop
-    replaces the static yield curve) unless it enters as a partial loop (``partial_loop``,
-    ``_lagging_force_pays``). A share searched in every loop candidate made the loop win on
-    the vrths sine tests and cut the earthquake validation gain from 18 to 1 %
-    (docs/diagnose.md), so here the share is freed on top of a loop the data already named,
-    and kept by the selection's rule on the inner folds. With a share below 1 the static part
+    replaces the static yield curve) where the share is not testable: there a share searched
+    in every loop candidate made the loop win on the vrths sine tests and cut the earthquake
+    validation gain from 18 to 1 % (docs/diagnose.md), so the share is freed here, on top of
+    a loop the data already named, and kept by the selection's rule on the inner folds. Where
+    it is testable every loop candidate carries its share (``_forward``, ``_children``,
+    ``_lagging_force_pays``) and this refit only polishes it. With a share below 1 the static part
     ``S`` is drawn again, so its own shape (``yield_shape``, exclusive with the loop while
     ``w_h = 1``, where it draws nothing) is judged on top of the freed share by the same rule
     (also when the loop entered with its share: ``partial_loop``, ``_lagging_force_pays``).
