@@ -12,6 +12,7 @@ from rosbags.rosbag2 import Reader
 from mr_suspension.nodes import contract as c
 from mr_suspension.nodes.launch import _env, run_node_set
 
+HOGS = 3
 ROAD = '{type: bump, height: 0.05, length: 2.0, speed: 10.0}'
 
 
@@ -47,7 +48,7 @@ def test_lockstep_bag_holds_every_sample_of_a_run_longer_than_its_queues(tmp_pat
     which changed what diagnose-vehicle named on the bag.
     """
     # Three busy processes: a loaded machine (a CI runner, a user's desktop).
-    hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(3)]
+    hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(HOGS)]
     try:
         res = run_node_set(tmp_path / 'run', duration=6.0, road=ROAD, controller='passive_1A',
                            lockstep=True, timeout=120.0, domain_id='random')

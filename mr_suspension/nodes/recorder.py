@@ -47,6 +47,7 @@ from mr_suspension.nodes import cdr, common, contract as c
 NODE = 'recorder'
 # Lock-step stamps are k dt; a step below 1 us means wall-clock stamps (a plant in real time).
 MIN_STEP_NS = 1000
+LOCKSTEP_QUEUE_FACTOR = 10  # queue depth in lock-step, times the contract's
 STORAGES = tuple(SUFFIX)
 
 
@@ -126,8 +127,13 @@ class RecorderNode(Node):
             msgdef, _ = store.generate_msgdef(t.type, ros_version=2)
             conn = self.writer.add_connection(full, t.type, msgdef, store.hash_rihs01(t.type))
             self.counts[full] = 0
-            sub = self.taps.create_subscription(message_class(t.type), name, _never,
-                                                common.qos(name, self.lockstep), raw=True)
+            qos = common.qos(name, self.lockstep)
+            if self.lockstep:
+                # The lock-step loop runs at up to 4x real time: the contract's 1 s of queue is
+                # 0.25 s there, and a recorder held up longer lost the rest (a 2.6 s gap).
+                qos.depth = LOCKSTEP_QUEUE_FACTOR * qos.depth
+            sub = self.taps.create_subscription(message_class(t.type), name, _never, qos,
+                                                raw=True)
             # Lock-step: Clock and stamped messages carry the simulated time at one offset.
             timed = self.lockstep and (full == c.CLOCK or t.type in (c.IMU, c.JOINT_STATE))
             self.sources.append((sub, conn, full, timed, [-1]))
