@@ -443,12 +443,33 @@ def _background(fn):
     return fut.result
 
 
+def _loop_candidate(fit_loop, share, needs_share=False):
+    """Fit a ``hysteresis`` candidate; its share of the yield force only where it pays.
+
+    ``fit_loop(extra)`` fits the candidate. Where the share is testable the loop is fitted
+    with ``w_h = 1`` and with its share searched, and the share is kept when it pays against
+    ``w_h = 1`` by the selection's rule (nested): a share taken unjudged let the loop of a
+    Bouc-Wen damper (``w_h = 1``) absorb part of a current effect. ``needs_share``: the loop
+    joins a named ``yield_shape`` (``partial_loop``), where only a share means anything.
+    """
+    if not share:
+        return fit_loop(())
+    part = fit_loop((engine.SHARE,))
+    if needs_share:
+        return part
+    whole = fit_loop(())
+    return part if accepted(part.test, whole.test) else whole
+
+
 def _children(ds, chosen, candidates, current, tick, share):
     def child(e):
-        extra = (engine.SHARE,) if share and e == 'hysteresis' else ()
-        return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
-                                  start_theta=current.theta, new=(e,), sweeps=1,
-                                  fixed=SCREEN_FIXED, extra=extra)
+        def fit(extra):
+            return engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
+                              start_theta=current.theta, new=(e,), sweeps=1,
+                              fixed=SCREEN_FIXED, extra=extra)
+        if e == 'hysteresis':
+            return lambda: _loop_candidate(fit, share, partial_loop(chosen, e, share))
+        return lambda: fit(())
 
     pool = _parallel({e: ('+'.join(list(chosen) + [e]), child(e)) for e in candidates
                       if e not in chosen and (compatible(chosen, e)
@@ -641,10 +662,13 @@ def _forward(ds, base, sensors, physics, tick, share):
             fits[tuple(chosen)] = current
 
     def single(e):
-        extra = (engine.SHARE,) if share and e == 'hysteresis' else ()
-        return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
-                                  start_theta=current.theta, new=(e,), fixed=SCREEN_FIXED,
-                                  extra=extra)
+        def fit(extra):
+            return engine.fit(ds, tuple(chosen) + (e,), start_eta=current.eta,
+                              start_theta=current.theta, new=(e,), fixed=SCREEN_FIXED,
+                              extra=extra)
+        if e == 'hysteresis':
+            return lambda: _loop_candidate(fit, share)
+        return lambda: fit(())
 
     singles = _parallel({e: (e, single(e)) for e in physics}, tick)
     if chosen and singles and current.delay > 0:
@@ -843,10 +867,11 @@ def _hysteresis_share(ds, final, chosen, physics, tick):
     in every loop candidate made the loop win on the vrths sine tests and cut the earthquake
     validation gain from 18 to 1 % (docs/diagnose.md), so the share is freed here, on top of
     a loop the data already named, and kept by the selection's rule on the inner folds. Where
-    it is testable every loop candidate carries its share (``_forward``, ``_children``,
-    ``_lagging_force_pays``) and this refit only polishes it. With a share below 1 the static part
-    ``S`` is drawn again, so its own shape (``yield_shape``, exclusive with the loop while
-    ``w_h = 1``, where it draws nothing) is judged on top of the freed share by the same rule
+    it is testable every loop candidate is fitted with its share too and keeps it where it
+    pays (``_loop_candidate``, ``_lagging_force_pays``); this refit then only polishes it.
+    With a share below 1 the static part ``S`` is drawn again, so its own shape
+    (``yield_shape``, exclusive with the loop while ``w_h = 1``, where it draws nothing) is
+    judged on top of the freed share by the same rule
     (also when the loop entered with its share: ``partial_loop``, ``_lagging_force_pays``).
     Run only where the share is testable (``share_testable``). Returns ``(final, chosen,
     step record)``.
