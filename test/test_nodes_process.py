@@ -12,8 +12,15 @@ from rosbags.rosbag2 import Reader
 from mr_suspension.nodes import contract as c
 from mr_suspension.nodes.launch import _env, run_node_set
 
-HOGS = 3
 ROAD = '{type: bump, height: 0.05, length: 2.0, speed: 10.0}'
+
+
+def _assert_nothing_lost(counts, published, lockstep):
+    """Every plant topic reached the bag once per sample (/clock only in lock-step)."""
+    for topic in c.published_by('plant'):
+        if topic != c.CLOCK or lockstep:
+            name = topic if topic == c.CLOCK else '/front_left/' + topic
+            assert counts[name] == published, topic
 
 
 @pytest.mark.parametrize('lockstep, delay, tol', [(True, 0, 1e-6), (True, 1, 2.0),
@@ -27,10 +34,7 @@ def test_node_set_processes_agree_with_offline(tmp_path, lockstep, delay, tol):
     counts = res['summary']['counts']
     published = res['stats']['plant']['published']
     assert published == 1001
-    for topic in c.published_by('plant'):
-        if topic != c.CLOCK or lockstep:
-            name = topic if topic == c.CLOCK else '/front_left/' + topic
-            assert counts[name] == published, topic  # nothing lost on the way to the bag
+    _assert_nothing_lost(counts, published, lockstep)
     assert counts['/front_left/' + c.DAMPER_FORCE] == res['stats']['actuator']['motion_samples']
     # config/nodes/recorder.yaml; not in lock-step (no latency to protect, see below)
     assert res['stats']['recorder']['niceness'] == (0 if lockstep else 10)
@@ -41,14 +45,14 @@ def test_node_set_processes_agree_with_offline(tmp_path, lockstep, delay, tol):
 
 
 def test_lockstep_bag_holds_every_sample_of_a_run_longer_than_its_queues(tmp_path):
-    """A lock-step run of 6 s on a loaded machine (the recorder's queues hold 1 s) loses nothing.
+    """A lock-step run of 6 s on a loaded machine loses nothing.
 
     The lock-step loop runs as fast as the CPU allows; a recorder niced to 10 starved there,
     its queues overflowed and a 12 s run kept 74 % of the plant's samples (gaps of 1.7 s),
     which changed what diagnose-vehicle named on the bag.
     """
     # Three busy processes: a loaded machine (a CI runner, a user's desktop).
-    hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(HOGS)]
+    hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(3)]
     try:
         res = run_node_set(tmp_path / 'run', duration=6.0, road=ROAD, controller='passive_1A',
                            lockstep=True, timeout=120.0, domain_id='random')
@@ -59,10 +63,7 @@ def test_lockstep_bag_holds_every_sample_of_a_run_longer_than_its_queues(tmp_pat
     assert res['returncodes'] == {'recorder': 0, 'controller': 0, 'actuator': 0, 'plant': 0}
     published = res['stats']['plant']['published']
     assert published == 6001
-    counts = res['summary']['counts']
-    for topic in c.published_by('plant'):
-        name = topic if topic == c.CLOCK else '/front_left/' + topic
-        assert counts[name] == published, topic
+    _assert_nothing_lost(res['summary']['counts'], published, lockstep=True)
 
 
 def test_recorder_closes_bag_on_sigterm(tmp_path):

@@ -750,14 +750,9 @@ def _lagging_force_pays(ds, base, singles, physics, steps, tick, share):
         return ok, None
     loop = engine.fit(ds, ('hysteresis',), start_eta=base.eta, start_theta=base.theta,
                       new=('hysteresis',), fixed=SCREEN_FIXED, extra=(engine.SHARE,))
-    loop_d = engine.fit(ds, ('channel_delay', 'hysteresis'), start_eta=loop.eta,
-                        start_theta=loop.theta, new=('channel_delay',))
-    tick('partial hysteresis with and without channel_delay')
-    ok, _, entry = _judged(loop_d.test, loop.test)
-    entry = {**entry, 'hyst_weight': round(loop.eta[engine.SHARE], 3)}
-    steps.append({'parent': ['hysteresis'], 'stage': 'channel_delay on top of a partial '
-                  'pre-yield loop (its share searched), against the loop without it',
-                  'candidates': {'channel_delay': entry}})
+    ok = _delay_on_top(ds, loop, steps, tick, 'partial hysteresis', 'channel_delay on top of '
+                       'a partial pre-yield loop (its share searched), against the loop '
+                       'without it')
     others = [e for e in singles if e != 'hysteresis']
     if not ok or not others:
         return ok, (None if ok else loop)
@@ -768,15 +763,22 @@ def _lagging_force_pays(ds, base, singles, physics, steps, tick, share):
     b = min(others, key=lambda e: singles[e].test.sum())
     pair = engine.fit(ds, ('hysteresis', b), start_eta=base.eta, start_theta=base.theta,
                       new=(b, 'hysteresis'), extra=(engine.SHARE,))
-    pair_d = engine.fit(ds, ('channel_delay', 'hysteresis', b), start_eta=pair.eta,
-                        start_theta=pair.theta, new=('channel_delay',))
-    tick(f'partial hysteresis + {b} with and without channel_delay')
-    ok, _, entry = _judged(pair_d.test, pair.test)
-    entry = {**entry, 'hyst_weight': round(pair.eta[engine.SHARE], 3)}
-    steps.append({'parent': ['hysteresis', b], 'stage': 'channel_delay on top of a partial '
-                  'pre-yield loop and the best physical single, against the two without it',
-                  'candidates': {'channel_delay': entry}})
+    ok = _delay_on_top(ds, pair, steps, tick, f'partial hysteresis + {b}', 'channel_delay on '
+                       'top of a partial pre-yield loop and the best physical single, against '
+                       'the two without it')
     return ok, (None if ok else loop)
+
+
+def _delay_on_top(ds, fit, steps, tick, label, stage):
+    """Judge ``channel_delay`` on top of a partial-loop ``fit``; record the step, return ok."""
+    with_d = engine.fit(ds, ('channel_delay',) + fit.effects, start_eta=fit.eta,
+                        start_theta=fit.theta, new=('channel_delay',))
+    tick(f'{label} with and without channel_delay')
+    ok, _, entry = _judged(with_d.test, fit.test)
+    entry = {**entry, 'hyst_weight': round(fit.eta[engine.SHARE], 3)}
+    steps.append({'parent': list(fit.effects), 'stage': stage,
+                  'candidates': {'channel_delay': entry}})
+    return ok
 
 
 def _leading_force(ds, chosen, final, fits, drop_loss, steps, tick):
@@ -871,8 +873,8 @@ def _hysteresis_share(ds, final, chosen, physics, tick):
     pays (``_loop_candidate``, ``_lagging_force_pays``); this refit then only polishes it.
     With a share below 1 the static part ``S`` is drawn again, so its own shape
     (``yield_shape``, exclusive with the loop while ``w_h = 1``, where it draws nothing) is
-    judged on top of the freed share by the same rule
-    (also when the loop entered with its share: ``partial_loop``, ``_lagging_force_pays``).
+    judged on top of the freed share by the same rule (also when the loop entered with its
+    share: ``partial_loop``, ``_lagging_force_pays``).
     Run only where the share is testable (``share_testable``). Returns ``(final, chosen,
     step record)``.
     """

@@ -22,10 +22,11 @@ The recorder needs no low latency. Run as a process of its own in real time it l
 priority (``niceness``, default 10), so on a small machine the control loop's wake-ups go first
 (not in lock-step, where the loop runs as fast as the CPU allows and would starve it). It does
 not wake for every message either: its subscriptions sit on an internal node (``<name>_taps``,
-not spun by any executor) whose middleware queues (depth 1000, one second at 1 kHz) fill
-between polls; every ``poll_period`` the node takes all queued messages and writes them in
-order of reception. At 1 kHz on seven topics that is about 200 wake-ups a second instead of
-7000, which leaves the CPU to the control loop. On SIGINT/SIGTERM it stops recording: it takes
+not spun by any executor) whose middleware queues (depth 1000, one second at 1 kHz; 10x that
+in lock-step, which runs faster than real time) fill between polls; every ``poll_period``
+the node takes all queued messages and writes them in order of reception. At 1 kHz on seven
+topics that is about 200 wake-ups a second instead of 7000, which leaves the CPU to the
+control loop. On SIGINT/SIGTERM it stops recording: it takes
 every queued message received up to ``drain_grace`` (0.2 s) after the stop, none received later,
 for at most ``drain_max`` (0.5 s), then closes the bag (summary and metadata written), so no
 message received before the signal is lost and publishers that keep going cannot hold it open.
@@ -85,8 +86,9 @@ class RecorderNode(Node):
                                'power loss too, not only a killed process)')
         poll_period = common.declare(self, d, 'poll_period', 'Take the queued messages this '
                                      'often [s] (queues hold 1 s at 1 kHz)', 0.0005, 0.5)
-        niceness = common.declare(self, d, 'niceness', 'Run at this nice value (0 = as '
-                                  'started; higher yields the CPU to the control loop)', 0, 19)
+        niceness = common.declare(self, d, 'niceness', 'Run at this nice value in real time '
+                                  '(0 = as started; higher yields the CPU to the control '
+                                  'loop; lock-step always runs as started)', 0, 19)
         self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
                                                  'as JSON here on exit ("" = off)'))
         if storage not in STORAGES:
