@@ -499,6 +499,46 @@ def _arctan_dataset(seed):
     return engine.Dataset([dataio.decimate(_record(case.columns), 4)], n_folds=5)
 
 
+def test_element_runs_are_memoised_exactly(monkeypatch):
+    """A design that moves only the force channel re-uses the element run; results are equal.
+
+    ``engine.element_run`` keys the run on the parameter array, the current dynamics and the
+    record: the regressors of a memoised design equal those of a fresh dataset, a delay or
+    low-pass change does not simulate again, another theta does, and the memo stays within
+    its byte budget (oldest out first).
+    """
+    ds = _arctan_dataset(3)
+    effects = ('channel_delay', 'hysteresis')
+    eta = {**engine.neutral_eta(), 'v_y': 0.01, 'x_h': 2e-3}
+    theta = np.array([0.0, 500.0, 1000.0, 50.0, 300.0])
+    calls = []
+    real = engine.simulate_extended
+
+    def counted(*a):
+        calls.append(1)
+        return real(*a)
+
+    monkeypatch.setattr(engine, 'simulate_extended', counted)
+    x0 = engine.design(ds, effects, eta, theta)
+    x1 = engine.design(ds, effects, {**eta, 'delay': 2e-3}, theta)
+    x2 = engine.design(ds, effects, eta, theta)
+    assert len(calls) == 1
+    assert np.array_equal(x0, x2) and not np.array_equal(x0, x1)
+    fresh = engine.Dataset(ds.records, n_folds=5)
+    assert np.array_equal(engine.design(fresh, effects, {**eta, 'delay': 2e-3}, theta), x1)
+    engine.design(ds, effects, eta, 1.5 * theta)
+    engine.design(ds, ('channel_delay', 'hysteresis', 'current_delay'),
+                  {**eta, 'dead_time': 0.01}, theta)
+    assert len(calls) == 4
+    run = engine.element_run(ds, 0, engine.damper_params(effects, eta, theta).to_array(),
+                             engine.current_dynamics(effects, eta))
+    assert not any(a.flags.writeable for a in run)
+    monkeypatch.setattr(engine, 'RUN_CACHE_BYTES', 2.5 * 5 * run[0].nbytes)
+    for k in range(4):
+        engine.design(ds, effects, {**eta, 'x_h': 1e-3 * (k + 1)}, theta)
+    assert len(ds._runs) == 2 and ds._runs_bytes <= engine.RUN_CACHE_BYTES
+
+
 def test_yield_exponent_is_searched_with_its_smoothing_velocity():
     """Truth: an arctan yield ``(2/pi) atan(w)`` (truth integrator), no other effect.
 
