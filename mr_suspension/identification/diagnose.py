@@ -1073,8 +1073,9 @@ def _fine_stage(ds, final, chosen, cands, tick, label, t_min=T_FINE):
                                       start_theta=final.theta, new=(e,), sweeps=1,
                                       local=(0.5, 1.0, 2.0))
         if e not in FINE:
-            # A physical cause screened again (``_rescreen``): its parameters on their
-            # whole grids, the parent's held.
+            # A physical cause screened again (``_rescreen``) or the force channel's delay
+            # judged again (``_fine_timing``): its parameters on their whole grids, the
+            # parent's held.
             return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta=final.eta,
                                       start_theta=final.theta, new=(e,), sweeps=1,
                                       fixed=held)
@@ -1268,7 +1269,9 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
             lagging = 'channel_delay' in chosen and final.delay > 0
             final, chosen, fine = _fine_timing(ds, start, chosen, physics + sens + full_sensors,
                                                tick, lagging)
-            if any(f.get('added', 'channel_delay') != 'channel_delay' for f in fine):
+            # A delay found at the full rate does not start it (on a Bouc-Wen damper the
+            # screen then added a 3e8 N/m spring as a false cause).
+            if any(f.get('added') not in (None, 'channel_delay') for f in fine):
                 final, chosen = _rescreen(ds, final, chosen, physics, fine, tick)
             steps = tuple(steps) + tuple(fine)
             for e, loss in _fine_losses(fine).items():
