@@ -4,6 +4,7 @@ Truths come from ``mr_suspension.truth`` (own integrator, other model shapes, re
 sensors) or from numpy written here, never from the fitting kernels.
 """
 
+import copy
 import warnings
 
 import numpy as np
@@ -715,3 +716,34 @@ def test_loop_share_must_pay_before_a_loop_candidate_carries_it(k):
     assert {'hysteresis', 'current_saturation'} <= set(res.physical_causes)
     unseen = case.unseen()
     assert est.score(_record(unseen.columns)) < 1.6 * cases.transfer_floor(case, unseen)
+
+
+def test_delivered_model_takes_the_outer_blocks_after_the_scoring():
+    """Scored on the outer blocks, the delivered model solves its linear part on every block.
+
+    The held-out figures stay those of the model fitted on the inner folds; the model that
+    ``predict`` and model.json carry has the least-squares linear parameters of all blocks
+    (same effects and nonlinear parameters).
+    """
+    case = cases.make_case(12, ('current_lag',), sensor_faults=(), duration=10.0,
+                           measured_current=False)
+    res = diagnose.Diagnosis().fit([_record(case.columns)])
+    ds, fin = res.dataset, res.final
+    assert 'current_lag' in res.causes and ds.outer.any()
+    x = engine.design(ds, fin.effects, fin.eta, fin.theta)
+    inner = copy.copy(fin)
+    inner.theta = engine.CVResult(ds, x, fin.eta).theta  # inner blocks only
+    assert not np.allclose(inner.theta, fin.theta)
+    # The held-out figure is the inner model's, on the outer blocks.
+    scored = diagnose.outer_mse(ds, inner)
+    assert res.heldout['extended_mse'] == pytest.approx(scored, rel=1e-6)
+    assert diagnose.outer_mse(ds, fin) < diagnose.outer_mse(ds, inner)
+    # The delivered one solves all blocks (no block left out): no other theta does better.
+    ds_all = engine.Dataset(ds.records, n_folds=ds.n_folds, outer=False)
+    x_all = engine.design(ds_all, fin.effects, fin.eta, fin.theta)
+    m = ds_all.fold >= 0
+
+    def sse(th):
+        return float(np.sum((ds_all.force[m] - x_all[m] @ th) ** 2))
+    assert sse(fin.theta) < sse(inner.theta)
+    assert sse(fin.theta) < sse(fin.theta * 1.001) and sse(fin.theta) < sse(fin.theta * 0.999)

@@ -13,6 +13,7 @@ resolve to the simpler one. Effects that the excitation cannot reveal are ``unte
 """
 
 from concurrent.futures import ThreadPoolExecutor
+import copy
 from dataclasses import dataclass, replace
 import os
 
@@ -1241,6 +1242,24 @@ def residual_map(ds, fit, bins=8):
                                                      for p, q in zip(band_pow, force_pow)]}}
 
 
+def all_data(ds_all, fit):
+    """Return the delivered model: ``fit``'s linear parameters solved on every block.
+
+    The held-out figures come from the model fitted on the inner folds; once they are
+    scored, the outer blocks (a sixth of the data, maybe the only block with some speed or
+    current) have no reason to stay out of the model that ``predict`` and model.json carry.
+    The selected effects and nonlinear parameters are kept (``theta`` by least squares with
+    the passivity bounds, ``engine.CVResult``). Returns a copy; ``fit`` when that fails.
+    """
+    x = engine.design(ds_all, fit.effects, fit.eta, fit.theta)
+    th = engine.CVResult(ds_all, x, fit.eta).theta
+    if th.shape != fit.theta.shape or not np.all(np.isfinite(th)):
+        return fit
+    out = copy.copy(fit)
+    out.theta = th
+    return out
+
+
 def _floor(records):
     try:
         return noise.estimate(records)
@@ -1360,6 +1379,11 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
             verdict = 'partly_explained'
     rmap = residual_map(ds, final if chosen else base) if ds.outer.any() else {}
     findings = tuple(f for r in full for f in getattr(r, 'findings', ()) or ())
+    if outer and ds.outer.any():
+        # Scored: now the delivered models take the outer blocks too.
+        ds_all = engine.Dataset(full, n_folds=n_folds, outer=False)
+        base = all_data(ds_all, base)
+        final = all_data(ds_all, final) if chosen else base
     return DiagnosisResult(
         dataset=ds, baseline=base, final=final if chosen else base, singles=singles,
         causes=tuple(order), locations=locations, drop_loss=drop_loss, ambiguous=ambiguous,

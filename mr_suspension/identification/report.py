@@ -131,7 +131,9 @@ def build(res, records, validate=(), elapsed=None):
                        'inner data for selection and parameter search; every sixth block '
                        '(outer) is used by nothing but the final scoring: held-out NRMSE and '
                        'gain come from it. Gaps of up to 0.1 s at every block edge; states run '
-                       'from the inputs only',
+                       'from the inputs only. The delivered models (model.json, predict) then '
+                       'solve their linear parameters again on every block, the selected '
+                       'effects and nonlinear parameters kept',
             'accept': f'pooled held-out MSE reduction >= {diagnose.G_MIN} and fold '
                       f't-statistic >= {diagnose.T_MIN}',
             'sensor_first': 'a force-channel delay (either sign, fractional samples) is '
