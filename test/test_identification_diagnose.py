@@ -122,3 +122,50 @@ def test_threaded_fits_give_the_serial_result(monkeypatch):
     np.testing.assert_array_equal(a.final.theta, b.final.theta)
     assert a.final.eta == b.final.eta
     assert a.heldout == b.heldout
+
+
+class _Fit:
+    """A fit as the selection rule reads it: held-out errors, prediction, block labels."""
+
+    def __init__(self, test_b, prediction, block_id, block_fold):
+        self.test_b = np.asarray(test_b, dtype=float)
+        self.test = np.bincount(block_fold, weights=self.test_b)
+        self.prediction = np.asarray(prediction, dtype=float)
+        self.block_id = block_id
+
+
+def _local_effect(gain_sign):
+    """20 blocks of 50 samples in 5 folds; the child moves 6 blocks (2 folds untouched)."""
+    rng = np.random.default_rng(4)
+    block_fold = np.arange(20) % 5
+    block_id = np.repeat(np.arange(20), 50)
+    parent_b = 1000.0 * (1.0 + 0.3 * rng.random(20))
+    child_b = parent_b * (1.0 + 0.02 * rng.standard_normal(20))  # untouched: noise only
+    acts = [0, 1, 5, 6, 10, 11]  # folds 0 and 1 hold every moved block
+    child_b[acts] = parent_b[acts] * np.exp(-gain_sign * rng.uniform(0.3, 0.6, 6))
+    pred_p = np.zeros(1000)
+    pred_c = pred_p.copy()
+    for j in acts:
+        pred_c[block_id == j] = 3.0  # 50 * 9 = 450 >= 0.1 * the block's error
+    return (_Fit(child_b, pred_c, block_id, block_fold),
+            _Fit(parent_b, pred_p, block_id, block_fold))
+
+
+def test_active_block_rule_sees_an_effect_that_acts_in_part_of_a_record():
+    """A gain in every block the effect moves passes although three folds gain nothing."""
+    child, parent = _local_effect(+1)
+    pooled, t, _ = diagnose.fold_stats(child.test, parent.test)
+    assert pooled >= diagnose.G_MIN and t < diagnose.T_MIN  # the fold t alone misses it
+    ta, n = diagnose.active_stats(child, parent)
+    assert n == 6 and ta > 5.0
+    assert diagnose._pays(child, parent)[0]
+    # A loss where it acts is no evidence, whatever the fold figures.
+    child, parent = _local_effect(-1)
+    ta, n = diagnose.active_stats(child, parent)
+    assert n == 6 and ta < 0 and not diagnose._pays(child, parent)[0]
+
+
+def test_active_block_rule_needs_enough_moved_blocks():
+    child, parent = _local_effect(+1)
+    child.prediction[parent.block_id >= 5] = 0.0  # now only blocks 0 and 1 move
+    assert diagnose.active_stats(child, parent) == (0.0, 2)

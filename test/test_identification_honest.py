@@ -747,3 +747,18 @@ def test_delivered_model_takes_the_outer_blocks_after_the_scoring():
         return float(np.sum((ds_all.force[m] - x_all[m] @ th) ** 2))
     assert sse(fin.theta) < sse(inner.theta)
     assert sse(fin.theta) < sse(fin.theta * 1.001) and sse(fin.theta) < sse(fin.theta * 0.999)
+
+
+def test_block_errors_add_up_to_the_fold_errors():
+    """Every inner block's held-out SSE is kept; a fold's is the sum of its blocks'."""
+    case = cases.make_case(12, ('current_lag',), sensor_faults=(), duration=6.0,
+                           measured_current=False)
+    recs = [_record(case.columns, 'a'), _record(case.unseen().columns, 'b')]
+    ds = engine.Dataset(recs, n_folds=5, outer=True)
+    assert ds.block_fold.size == 2 * 5 * 4  # 4 blocks per fold in each record
+    assert np.all(ds.block_id[ds.fold < 0] == -1)
+    assert np.array_equal(np.unique(ds.fold[ds.block_id >= 0]), np.arange(5))
+    fit = engine.fit(ds, ('current_lag',))
+    assert fit.test_b.shape == ds.block_fold.shape and np.all(fit.test_b > 0)
+    sums = np.bincount(ds.block_fold, weights=fit.test_b, minlength=5)
+    assert np.allclose(sums, fit.test, rtol=1e-9)

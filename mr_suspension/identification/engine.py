@@ -142,6 +142,13 @@ def fold_labels(record, n_folds, gap, blocks_per_fold, outer):
     return f
 
 
+def _block_index(record, n_folds, blocks_per_fold, outer):
+    """Block index per sample (the contiguous time blocks of ``fold_labels``)."""
+    nb = (n_folds + (1 if outer else 0)) * blocks_per_fold
+    t = record.time - record.time[0]
+    return np.minimum((t / (float(t[-1]) + record.dt) * nb).astype(int), nb - 1)
+
+
 class Dataset:
     """Concatenated records with block/fold structure and the scales used by the grids."""
 
@@ -164,6 +171,18 @@ class Dataset:
         self.order = np.argsort(self.fold, kind='stable')
         counts = np.bincount(self.fold + 1, minlength=n_folds + 1)
         self.bounds = np.cumsum(counts)
+        # Inner blocks: contiguous runs of one block in the fold-sorted order (time order is
+        # kept within a fold), so a fold's errors are the sum of its blocks'.
+        block = np.concatenate([_block_index(r, n_folds, blocks_per_fold, outer) + j * 10 ** 6
+                                for j, r in enumerate(self.records)])[self.order]
+        inner = block[self.bounds[0]:self.bounds[-1]]
+        starts = np.flatnonzero(np.diff(inner)) + 1
+        self.block_bounds = self.bounds[0] + np.concatenate([[0], starts, [inner.size]])
+        nb = self.block_bounds.size - 1 if inner.size else 0
+        self.block_fold = self.fold[self.order][self.block_bounds[:nb]]
+        self.block_id = np.full(self.force.size, -1)  # inner block of each sample (-1: none)
+        for j in range(nb):
+            self.block_id[self.order[self.block_bounds[j]:self.block_bounds[j + 1]]] = j
         used = self.fold >= 0
         self.f_std = float(np.std(self.force[used])) if used.any() else float(np.std(self.force))
         x = np.concatenate([r.displacement for r in self.records])
@@ -444,6 +463,7 @@ class CVResult:
             self.theta_k = np.zeros((k, p))
             self.train = np.full(k, np.inf)
             self.test = np.full(k, np.inf)
+            self.test_b = np.full(ds.block_fold.size, np.inf)
             return
         xs = x[ds.order]
         ys = ds.force[ds.order]
@@ -462,6 +482,19 @@ class CVResult:
             ek[f] = yf @ yf
             nk[f] = yf.size
         gt, ht, et = gk.sum(0), hk.sum(0), ek.sum()
+        # The same per inner block (the active-block rule reads block errors); the folds keep
+        # their own sums (the search's tie-breaks stay those of the fold sums).
+        bb = ds.block_bounds
+        bf = ds.block_fold
+        gb = np.empty((bf.size, p, p))
+        hb = np.empty((bf.size, p))
+        eb = np.empty(bf.size)
+        for j in range(bf.size):
+            xf = xs[bb[j]:bb[j + 1]]
+            yf = ys[bb[j]:bb[j + 1]]
+            gb[j] = xf.T @ xf
+            hb[j] = xf.T @ yf
+            eb[j] = yf @ yf
         self.eta = dict(eta)
         # All data and the K training sets (all but fold k) in one batched solve.
         gs = np.concatenate([gt[None], gt[None] - gk])
@@ -474,6 +507,9 @@ class CVResult:
         self.theta_k = tk
         quad = np.einsum('ki,kij,kj->k', tk, gk, tk)
         self.test = ek - 2 * np.einsum('ki,ki->k', tk, hk) + quad
+        tb = tk[bf]
+        self.test_b = (eb - 2 * np.einsum('ki,ki->k', tb, hb)
+                       + np.einsum('ki,kij,kj->k', tb, gb, tb))  # held-out SSE per block
         self.train = ((et - ek) - 2 * np.einsum('ki,ki->k', tk, hs[1:])
                       + np.einsum('ki,kij,kj->k', tk, gs[1:], tk))
 
@@ -491,11 +527,14 @@ class FitResult:
         # generation; only the final generation's regressors match the simulation.
         visited = [r for r in visited if getattr(r, 'gen', 0) == getattr(best, 'gen', 0)]
         self.test = np.empty(k)
+        self.test_b = np.empty(ds.block_fold.size)  # held-out SSE per inner block
+        self.block_id = ds.block_id
         self.eta_k = []
         self.theta_k = []
         for f in range(k):
             r = min(visited, key=lambda r: r.train[f])
             self.test[f] = r.test[f]
+            self.test_b[ds.block_fold == f] = r.test_b[ds.block_fold == f]
             self.eta_k.append(r.eta)
             self.theta_k.append(r.theta_k[f])
         self.n_test = best.n
