@@ -1020,6 +1020,10 @@ def _fine_timing(ds, final, chosen, allowed, tick, lagging=True, base=None):
         if rival and 'added' in steps[-1]:
             final, chosen = _edge_filter(ds, parent, (final, chosen), rival, cands, allowed,
                                          steps, tick)
+    elif 'current_lag' in chosen:
+        step = {'parent': list(chosen), 'candidates': {}, 'stage': 'fine timing (full rate)'}
+        final, chosen = _lag_as_dead_time(ds, final, chosen, allowed, step, tick)
+        steps.append(step)
     if 'channel_delay' in allowed and 'channel_delay' not in chosen:
         # A force-channel delay below a decimated sample (2.4 ms is 0.6 of a 250 Hz step) is
         # judged unreliably at the search rate: a Bouc-Wen damper's lead lost there at fold
@@ -1080,17 +1084,29 @@ def _fine_current_timing(ds, final, chosen, cands, allowed, steps, tick):
     """Fine stage of the current timing, then a search-rate lag tried as a dead time."""
     final, chosen, step = _fine_stage(ds, final, chosen, cands, tick, 'fine timing (full rate)')
     steps.append(step)
-    if 'added' not in step and 'current_lag' in chosen and 'current_delay' in allowed:
-        # A lag chosen at the search rate may be a dead time of a sample or two: the same
-        # number of parameters, so the lower held-out error decides.
-        dt = ds.dt_min
-        swap = tuple('current_delay' if c == 'current_lag' else c for c in chosen)
-        eta = {**final.eta, 'dead_time': round(final.eta['tau_lag'] / dt) * dt}
-        alt = engine.fit(ds, swap, start_eta=eta, start_theta=final.theta, new=(), sweeps=1)
-        tick('fine timing: lag -> dead time')
-        step['swap_lag_for_dead_time'] = round(fold_stats(alt.test, final.test)[0], 4)
-        if alt.test.sum() < final.test.sum():
-            return alt, list(swap)
+    if 'added' not in step:
+        return _lag_as_dead_time(ds, final, chosen, allowed, step, tick)
+    return final, chosen
+
+
+def _lag_as_dead_time(ds, final, chosen, allowed, step, tick):
+    """Try a lag chosen at the search rate as a dead time of a sample or two.
+
+    The same number of parameters, so the lower held-out error decides; run also when the
+    model has no room for a fine timing cause (a 1.34 ms dead time, a third of a 250 Hz step,
+    came out as a 2.5 ms lag beside two other causes). Records ``swap_lag_for_dead_time`` in
+    ``step``; returns ``(final, chosen)``.
+    """
+    if 'current_lag' not in chosen or 'current_delay' not in allowed:
+        return final, chosen
+    dt = ds.dt_min
+    swap = tuple('current_delay' if c == 'current_lag' else c for c in chosen)
+    eta = {**final.eta, 'dead_time': round(final.eta['tau_lag'] / dt) * dt}
+    alt = engine.fit(ds, swap, start_eta=eta, start_theta=final.theta, new=(), sweeps=1)
+    tick('fine timing: lag -> dead time')
+    step['swap_lag_for_dead_time'] = round(fold_stats(alt.test, final.test)[0], 4)
+    if alt.test.sum() < final.test.sum():
+        return alt, list(swap)
     return final, chosen
 
 
