@@ -1020,7 +1020,7 @@ def _fine_timing(ds, final, chosen, allowed, tick, lagging=True, base=None):
         if rival and 'added' in steps[-1]:
             final, chosen = _edge_filter(ds, parent, (final, chosen), rival, cands, allowed,
                                          steps, tick)
-    elif 'current_lag' in chosen:
+    elif 'current_lag' in chosen and 'current_delay' in allowed:
         step = {'parent': list(chosen), 'candidates': {}, 'stage': 'fine timing (full rate)'}
         final, chosen = _lag_as_dead_time(ds, final, chosen, allowed, step, tick)
         steps.append(step)
@@ -1056,10 +1056,11 @@ def _sensor_first(ds, base, final, chosen, steps, tick):
     alone = engine.fit(ds, ('channel_delay',), start_eta=base.eta, start_theta=base.theta,
                        new=('channel_delay',))
     tick('force channel delay on the full-rate baseline')
-    ok, _, entry = _judged(alone.test, base.test)
-    ok = ok and fold_stats(alone.test, base.test)[1] >= T_FINE
+    pooled, t, _ = fold_stats(alone.test, base.test)
+    ok = pooled >= G_MIN and t >= T_FINE
     step = {'parent': [], 'stage': 'force channel delay before the physics (full rate)',
-            'candidates': {'channel_delay': {**entry, 'accepted': ok}}}
+            'candidates': {'channel_delay': {'gain_mse': round(pooled, 4), 't': round(t, 2),
+                                             'accepted': ok}}}
     steps.append(step)
     if not ok or not chosen:
         return final, chosen

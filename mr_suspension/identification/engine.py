@@ -118,6 +118,13 @@ def shift_columns(x, s):
     return out
 
 
+def _block_position(record, nb):
+    """Position of each sample in ``nb`` equal time blocks (from time) and its block index."""
+    t = record.time - record.time[0]
+    pos = t / (float(t[-1]) + record.dt) * nb
+    return pos, np.minimum(pos.astype(int), nb - 1)
+
+
 def fold_labels(record, n_folds, gap, blocks_per_fold, outer):
     """Fold label per sample from the record's time: ``k`` (inner fold), ``OUTER`` or -1.
 
@@ -127,10 +134,8 @@ def fold_labels(record, n_folds, gap, blocks_per_fold, outer):
     """
     labels = n_folds + (1 if outer else 0)
     nb = labels * blocks_per_fold
-    t = record.time - record.time[0]
-    span = float(t[-1]) + record.dt
-    pos = t / span * nb
-    b = np.minimum(pos.astype(int), nb - 1)
+    pos, b = _block_position(record, nb)
+    span = float(record.time[-1] - record.time[0]) + record.dt
     g = min(gap, 0.1 * span / nb) / span * nb
     frac = pos - b
     lab = b % labels
@@ -140,13 +145,6 @@ def fold_labels(record, n_folds, gap, blocks_per_fold, outer):
     if mask is not None:
         f[~np.asarray(mask, dtype=bool)] = -1
     return f
-
-
-def _block_index(record, n_folds, blocks_per_fold, outer):
-    """Block index per sample (the contiguous time blocks of ``fold_labels``)."""
-    nb = (n_folds + (1 if outer else 0)) * blocks_per_fold
-    t = record.time - record.time[0]
-    return np.minimum((t / (float(t[-1]) + record.dt) * nb).astype(int), nb - 1)
 
 
 class Dataset:
@@ -173,7 +171,8 @@ class Dataset:
         self.bounds = np.cumsum(counts)
         # Inner blocks: contiguous runs of one block in the fold-sorted order (time order is
         # kept within a fold), so a fold's errors are the sum of its blocks'.
-        block = np.concatenate([_block_index(r, n_folds, blocks_per_fold, outer) + j * 10 ** 6
+        nb_rec = (n_folds + (1 if outer else 0)) * blocks_per_fold
+        block = np.concatenate([_block_position(r, nb_rec)[1] + j * nb_rec
                                 for j, r in enumerate(self.records)])[self.order]
         inner = block[self.bounds[0]:self.bounds[-1]]
         starts = np.flatnonzero(np.diff(inner)) + 1
@@ -181,8 +180,8 @@ class Dataset:
         nb = self.block_bounds.size - 1 if inner.size else 0
         self.block_fold = self.fold[self.order][self.block_bounds[:nb]]
         self.block_id = np.full(self.force.size, -1)  # inner block of each sample (-1: none)
-        for j in range(nb):
-            self.block_id[self.order[self.block_bounds[j]:self.block_bounds[j + 1]]] = j
+        self.block_id[self.order[self.bounds[0]:self.bounds[-1]]] = np.repeat(
+            np.arange(nb), np.diff(self.block_bounds)[:nb])
         used = self.fold >= 0
         self.f_std = float(np.std(self.force[used])) if used.any() else float(np.std(self.force))
         x = np.concatenate([r.displacement for r in self.records])
@@ -449,6 +448,19 @@ def _passive(gs, hs, th, i_max):
     return th
 
 
+def _grams(xs, ys, bounds):
+    """``X^T X``, ``X^T y`` and ``y^T y`` of each row range ``bounds[j]:bounds[j + 1]``."""
+    n, p = bounds.size - 1, xs.shape[1]
+    g, h, e = np.empty((n, p, p)), np.empty((n, p)), np.empty(n)
+    for j in range(n):
+        xf = xs[bounds[j]:bounds[j + 1]]
+        yf = ys[bounds[j]:bounds[j + 1]]
+        g[j] = xf.T @ xf
+        h[j] = xf.T @ yf
+        e[j] = yf @ yf
+    return g, h, e
+
+
 class CVResult:
     """Held-out and training errors of one model at one ``eta``."""
 
@@ -467,34 +479,13 @@ class CVResult:
             return
         xs = x[ds.order]
         ys = ds.force[ds.order]
-        b = ds.bounds
-        k = ds.n_folds
-        p = x.shape[1]
-        gk = np.empty((k, p, p))
-        hk = np.empty((k, p))
-        ek = np.empty(k)
-        nk = np.empty(k)
-        for f in range(k):
-            xf = xs[b[f]:b[f + 1]]
-            yf = ys[b[f]:b[f + 1]]
-            gk[f] = xf.T @ xf
-            hk[f] = xf.T @ yf
-            ek[f] = yf @ yf
-            nk[f] = yf.size
+        gk, hk, ek = _grams(xs, ys, ds.bounds)
+        nk = np.diff(ds.bounds).astype(float)
         gt, ht, et = gk.sum(0), hk.sum(0), ek.sum()
         # The same per inner block (the active-block rule reads block errors); the folds keep
         # their own sums (the search's tie-breaks stay those of the fold sums).
-        bb = ds.block_bounds
         bf = ds.block_fold
-        gb = np.empty((bf.size, p, p))
-        hb = np.empty((bf.size, p))
-        eb = np.empty(bf.size)
-        for j in range(bf.size):
-            xf = xs[bb[j]:bb[j + 1]]
-            yf = ys[bb[j]:bb[j + 1]]
-            gb[j] = xf.T @ xf
-            hb[j] = xf.T @ yf
-            eb[j] = yf @ yf
+        gb, hb, eb = _grams(xs, ys, ds.block_bounds[:bf.size + 1])
         self.eta = dict(eta)
         # All data and the K training sets (all but fold k) in one batched solve.
         gs = np.concatenate([gt[None], gt[None] - gk])
