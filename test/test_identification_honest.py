@@ -791,7 +791,7 @@ def test_spring_and_loop_restarts_leave_a_wrong_k1_valley(seed):
     wrong = engine.fit(ds, effects, new=(), sweeps=1, start_eta={
         'k_series': 4 * t.k_series, 'x_h': 1.2 * x_y, 'hyst_n': 1.5, 'hyst_r': 0.5})
     assert wrong.sse > 3 * at_truth.sse  # the single start really is stuck
-    best = engine.spring_loop_starts(ds, wrong)
+    best = engine.loop_restarts(ds, wrong, engine.K1_STARTS)
     assert best.sse < 1.2 * at_truth.sse
     assert best.eta['k_series'] == pytest.approx(t.k_series, rel=0.15)
 

@@ -649,20 +649,21 @@ def _search_order(effects, new):
     return names
 
 
-def spring_loop_starts(ds, fit0):
-    """Best of restarts of a spring-and-loop model over k1, each with its loop searched anew.
+def loop_restarts(ds, fit0, k1_factors=(1,)):
+    """Best of ``fit0`` and its refits with the pre-yield loop searched anew (one sweep each).
 
-    A series spring in front of the damping element draws a pre-yield loop too (seed 000
-    Fig. 7), so k1 and the loop's length, exponent and unloading shape trade along several
-    valleys, and the coordinate search ends in the one it started in (a Bouc-Wen damper
-    behind a 6.2e5 N/m spring: k1 4x too stiff, the loop's unloading shape at its bound, a
-    training SSE 8x that of the truth's parameters). Each start scales k1 by a factor of
-    ``K1_STARTS`` (1 included: the loop searched again at the same k1) and searches the loop
-    on its full grids (one sweep); the lowest training SSE on the inner folds wins, ``fit0``
-    included. The effects are ``fit0``'s; no outer block is read.
+    Each restart scales k1 by one of ``k1_factors`` (a model without a spring keeps k1 = 0)
+    and searches the loop on its full grids; the lowest training SSE on the inner folds wins,
+    ``fit0`` included. The effects are ``fit0``'s; no outer block is read.
+
+    With ``K1_STARTS``: a series spring in front of the damping element draws a pre-yield
+    loop too (seed 000 Fig. 7), so k1 and the loop's length, exponent and unloading shape
+    trade along several valleys, and the coordinate search ends in the one it started in (a
+    Bouc-Wen damper behind a 6.2e5 N/m spring: k1 4x too stiff, the loop's unloading shape
+    at its bound, a training SSE 8x that of the truth's parameters).
     """
     best = fit0
-    for fac in K1_STARTS:
+    for fac in k1_factors:
         eta = dict(fit0.eta)
         eta['k_series'] *= fac
         r = fit(ds, fit0.effects, eta, fit0.theta, new=('hysteresis',), sweeps=1)
