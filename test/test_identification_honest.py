@@ -817,3 +817,28 @@ def test_loop_is_searched_again_at_the_full_rate():
     assert any(s.get('stage') == 'loop searched anew (full rate)' for s in res.steps)
     unseen = case.unseen()
     assert est.score(_record(unseen.columns)) < 2.8 * cases.transfer_floor(case, unseen)
+
+
+def test_anti_alias_filter_comes_before_the_spring_that_mimicked_it():
+    """Algebraic-yield damper with a rebound/compression asymmetry, a 169 Hz anti-alias filter.
+
+    Truth integrator; the load cell also clips at 86 % of its peak. The filter's roll-off
+    had been taken by a 2.4e7 N/m series spring and a 1 ms dead time; on top of them the
+    filter gained 0.16 at fold t 1.3 and was not named, and the unseen record sat at 2.6
+    floors. Judged before the physics it hides, the filter stands and the spring and the
+    dead time go.
+    """
+    case = cases.make_case(267, ('direction_asymmetry',), sensor_faults=None, duration=12.0,
+                           measured_current=None)
+    f_ch = case.sensor['spec'].force_filter_hz
+    assert f_ch == pytest.approx(168.8, abs=0.1)
+    est = diagnose.Diagnosis()
+    res = est.fit([_record(case.columns)])
+    assert res.locations.get('channel_filter') == 'sensor'
+    assert res.channel_filter == pytest.approx(f_ch, rel=0.1)
+    assert 'direction_asymmetry' in res.physical_causes
+    assert not {'series_stiffness', 'current_delay'} & set(res.physical_causes)
+    assert any(s.get('added') == 'channel_filter' and 'before the physics' in s.get('stage', '')
+               for s in res.steps)
+    unseen = case.unseen()
+    assert est.score(_record(unseen.columns)) < 1.6 * cases.transfer_floor(case, unseen)

@@ -1007,9 +1007,7 @@ def _fine_timing(ds, final, chosen, allowed, tick, lagging=True, base=None):
     steps = []
     filt = [e for e in FULL_RATE_SENSORS if e in allowed and e not in chosen]
     if filt and lagging:
-        final, chosen, step = _fine_stage(ds, final, chosen, filt, tick,
-                                          'force channel low-pass (full rate)')
-        steps.append(step)
+        final, chosen = _filter_stage(ds, final, chosen, filt, steps, tick)
     rival = [] if lagging else filt  # not judged yet: only as the timing's rival
     cands = []
     if _room(chosen):
@@ -1035,6 +1033,10 @@ def _fine_timing(ds, final, chosen, allowed, tick, lagging=True, base=None):
         steps.append(step)
         if 'channel_delay' not in chosen and base is not None:
             final, chosen = _sensor_first(ds, base, final, chosen, steps, tick)
+        filt = [e for e in filt if e not in chosen]
+        if filt and not lagging and 'channel_delay' in chosen and final.delay > 0:
+            # The force lags after all: the low-pass is judged as on a lagging record.
+            final, chosen = _filter_stage(ds, final, chosen, filt, steps, tick)
     if 'channel_filter' in chosen and any(c in TIMING for c in chosen):
         final, chosen = _filter_over_delay(ds, final, chosen, steps, tick)
     return final, chosen, steps
@@ -1079,6 +1081,52 @@ def _sensor_first(ds, base, final, chosen, steps, tick):
         step['loss'] = round(fold_stats(red.test, base.test)[0], 4)
         return red, reduced
     return final, chosen
+
+
+def _filter_stage(ds, final, chosen, filt, steps, tick):
+    """Judge the force-channel low-pass at the full rate, then before the physics."""
+    pool = {}
+    final, chosen, step = _fine_stage(ds, final, chosen, filt, tick,
+                                      'force channel low-pass (full rate)', out=pool)
+    steps.append(step)
+    if 'channel_filter' in pool and 'channel_filter' not in chosen:
+        final, chosen = _filter_first(ds, final, chosen, pool['channel_filter'], steps, tick)
+    return final, chosen
+
+
+def _filter_first(ds, final, chosen, with_f, steps, tick):
+    """Judge a force-channel low-pass before the physics that was bent to mimic it.
+
+    A low-pass rolls the force off at every fast change, which a stiff series spring (its
+    lag ``c / k1`` on the steep pre-yield branch) or a command-to-force dead time also
+    produce: a 169 Hz anti-alias filter on an effect-free-but-asymmetric damper was named a
+    2.4e7 N/m spring plus a 1 ms dead time, and the filter on top of them gained 0.16 at fold
+    t 1.3 only, because they had taken its place. Sensor findings come first, as for the delay
+    (``_sensor_first``): when the filter, fitted with the chosen causes (``with_f``), gains at
+    least ``G_MIN``, the causes it makes redundant are dropped (backward check, the force
+    channel kept); the model with the filter and no more causes replaces the selection
+    unless the selection is materially and consistently better. Appends its step record;
+    returns ``(final, chosen)``.
+    """
+    pooled, t, _ = fold_stats(with_f.test, final.test)
+    phys = [c for c in chosen if c not in engine.SENSOR_EFFECTS]
+    if pooled < G_MIN or not phys:
+        return final, chosen
+    both = tuple(chosen) + ('channel_filter',)
+    reduced, red = backward(ds, both, {both: with_f}, drop_loss={},
+                            skip=engine.SENSOR_EFFECTS, tick=tick)
+    keeps = len(reduced) <= len(chosen) and not accepted(final.test, red.test)
+    gain, t, _ = fold_stats(red.test, final.test)
+    step = {'parent': list(chosen), 'stage': 'force channel low-pass before the physics it '
+            'hides (full rate)', 'candidates': {'channel_filter': {
+                'gain_mse': round(pooled, 4), 'causes': list(reduced),
+                'replaces_gain_mse': round(gain, 4), 't': round(t, 2), 'accepted': bool(keeps)}}}
+    steps.append(step)
+    if not keeps:
+        return final, chosen
+    step['added'] = 'channel_filter'
+    step['loss'] = round(pooled, 4)
+    return red, list(reduced)
 
 
 def _fine_current_timing(ds, final, chosen, cands, allowed, steps, tick):
@@ -1159,11 +1207,11 @@ def _filter_over_delay(ds, final, chosen, steps, tick):
     return (final, chosen) if ok else (alt, list(swap))
 
 
-def _fine_stage(ds, final, chosen, cands, tick, label, t_min=T_FINE):
+def _fine_stage(ds, final, chosen, cands, tick, label, t_min=T_FINE, out=None):
     """Fit ``cands`` on top of ``final`` (its parameters held), accept the best at ``t_min``.
 
     Returns ``(final, chosen, step record)``; the record carries ``added`` and its pooled
-    ``loss`` when a candidate was named.
+    ``loss`` when a candidate was named. ``out`` (a dict) receives the candidates' fits.
     """
     held = tuple(n for c in chosen for n in engine.EFFECT_PARAMS[c])
     dt = ds.dt_min
@@ -1196,6 +1244,8 @@ def _fine_stage(ds, final, chosen, cands, tick, label, t_min=T_FINE):
     neutral = engine.neutral_eta()
     pool = {e: f for e, f in pool.items()
             if any(f.eta[n] != neutral[n] for n in engine.EFFECT_PARAMS[e])}
+    if out is not None:
+        out.update(pool)
     best, _, stats = _choose(pool, final, t_min) if pool else (None, (), {})
     step = _step_record(chosen, stats)
     step['stage'] = label
