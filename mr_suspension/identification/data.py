@@ -141,6 +141,23 @@ def derive_velocity(x, dt, cutoff=25.0, order=2):
     return np.gradient(sensors.lowpass(x, dt, cutoff, order), dt)
 
 
+def _grid_mask(base, row_mask, gap_mask, n):
+    """Usable samples of the uniform grid from the ``n`` input rows' ``row_mask``."""
+    row_mask = np.broadcast_to(np.asarray(row_mask, dtype=bool), (n,))
+    if base.resampled:
+        bad_rows = np.flatnonzero(~row_mask)
+        mask = np.ones(base.time.size, dtype=bool)
+        if bad_rows.size:
+            j = np.searchsorted(base.stamps, base.time)
+            bad = np.zeros(n + 1, dtype=bool)
+            bad[bad_rows] = True
+            mask = ~(bad[np.clip(j, 0, n - 1)] | bad[np.clip(j - 1, 0, n - 1)])
+        return mask
+    mask = gap_mask.copy()
+    mask[base.index] = row_mask
+    return mask
+
+
 def velocity_band(x, dt, opts):
     """Cut-off [Hz] and filter order for velocities: the user's, else the motion band's."""
     from mr_suspension.identification import sensors
@@ -263,6 +280,7 @@ def build_record(name, cols, opts=None, meta=None):
     if not opts.need_force:
         checked.remove('force')
     still = _consistent_holds(cols, t, opts) if measured_v else {}
+    own = {}  # each channel's own unusable samples (its motion is bridged over them)
     for k in checked:
         y = cols[k]
         ok = np.isfinite(y)
@@ -287,6 +305,7 @@ def build_record(name, cols, opts=None, meta=None):
         if not good.all():
             cols[k] = sensors.fill(np.where(good, y, 0.0), good)
             row_mask &= good
+            own[k] = good
         findings.extend(f for f in (fnd, fs, fc) if f is not None)
     mf, ff = sensors.frame_holds({k: cols[k] for k in ('force', 'displacement', 'velocity')
                                   if k in checked})
@@ -296,25 +315,23 @@ def build_record(name, cols, opts=None, meta=None):
     base, ft = sensors.uniform_time(t)
     gap_mask, fg = sensors.missing_rows(base)
     findings.extend(f for f in (ft, fg) if f is not None)
-    stamps = base.stamps
     if base.resampled:
-        tg = base.time
         for k in list(cols):
             if k != 'time':
-                cols[k] = np.interp(tg, stamps, cols[k])
-        bad_rows = np.flatnonzero(~row_mask)
-        mask = np.ones(tg.size, dtype=bool)
-        if bad_rows.size:
-            j = np.searchsorted(stamps, tg)
-            bad = np.zeros(n + 1, dtype=bool)
-            bad[bad_rows] = True
-            mask = ~(bad[np.clip(j, 0, n - 1)] | bad[np.clip(j - 1, 0, n - 1)])
+                cols[k] = np.interp(base.time, base.stamps, cols[k])
     else:
         for k in list(cols):
             if k != 'time':
                 cols[k] = _on_grid(base, cols[k])
-        mask = gap_mask.copy()
-        mask[base.index] = row_mask
+    stamps = base.stamps
+    mask = _grid_mask(base, row_mask, gap_mask, n)
+    for k in ('displacement', 'velocity'):
+        # A gap or a frozen frame in the motion: bridged smoothly (a line leaves kinks that
+        # the velocity's derivative and low-pass spread over the usable samples around it).
+        motion_ok = _grid_mask(base, own.get(k, True) & (True if ff is None else mf),
+                               gap_mask, n)
+        if k in cols and not motion_ok.all():
+            cols[k] = sensors.fill_motion(cols[k], motion_ok)
     for fnd in findings:
         warnings.warn(f'{name}: {fnd["finding"]}: {fnd["detail"]}')
     if mask.mean() < 0.5:
