@@ -325,12 +325,14 @@ def build_record(name, cols, opts=None, meta=None):
                 cols[k] = _on_grid(base, cols[k])
     stamps = base.stamps
     mask = _grid_mask(base, row_mask, gap_mask, n)
+    held = True if mf is None else mf  # a frozen frame holds every motion channel
     for k in ('displacement', 'velocity'):
+        if k not in cols:
+            continue
         # A gap or a frozen frame in the motion: bridged smoothly (a line leaves kinks that
         # the velocity's derivative and low-pass spread over the usable samples around it).
-        motion_ok = _grid_mask(base, own.get(k, True) & (True if ff is None else mf),
-                               gap_mask, n)
-        if k in cols and not motion_ok.all():
+        motion_ok = _grid_mask(base, own.get(k, True) & held, gap_mask, n)
+        if not motion_ok.all():
             cols[k] = sensors.fill_motion(cols[k], motion_ok)
     for fnd in findings:
         warnings.warn(f'{name}: {fnd["finding"]}: {fnd["detail"]}')

@@ -1070,17 +1070,30 @@ def _sensor_first(ds, base, final, chosen, steps, tick):
     with_d = engine.fit(ds, tuple(both), start_eta={**final.eta, 'delay': alone.eta['delay']},
                         start_theta=final.theta, new=(), sweeps=1, local=(0.5, 1.0, 2.0))
     tick('force channel delay with the physics')
-    reduced, red = backward(ds, both, {tuple(both): with_d}, drop_loss={},
-                            skip=('channel_delay',), tick=tick)
-    keeps = len(reduced) <= len(chosen) and not accepted(final.test, red.test)
-    pooled, t, _ = fold_stats(red.test, final.test)
-    step['replaces'] = {'causes': list(reduced), 'gain_mse': round(pooled, 4),
-                        't': round(t, 2), 'accepted': bool(keeps)}
-    if keeps:
+    reduced, red, step['replaces'] = _replaces(ds, final, chosen, both, with_d,
+                                               ('channel_delay',), tick)
+    if step['replaces']['accepted']:
         step['added'] = 'channel_delay'
         step['loss'] = round(fold_stats(red.test, base.test)[0], 4)
         return red, reduced
     return final, chosen
+
+
+def _replaces(ds, final, chosen, both, with_s, skip, tick):
+    """Drop what a sensor effect fitted with the chosen causes makes redundant; judge that.
+
+    ``with_s`` is the fit of ``both`` (``chosen`` and the sensor effect); the causes in
+    ``skip`` are kept without a test (backward check). The reduction replaces the selection
+    (``final``, ``chosen``) when it has no more causes and the selection is not materially
+    and consistently better. Returns ``(causes, fit, record)``; the record holds the causes,
+    the pooled gain and fold t against ``final`` and ``accepted``.
+    """
+    reduced, red = backward(ds, both, {tuple(both): with_s}, drop_loss={}, skip=skip,
+                            tick=tick)
+    keeps = len(reduced) <= len(chosen) and not accepted(final.test, red.test)
+    pooled, t, _ = fold_stats(red.test, final.test)
+    return reduced, red, {'causes': list(reduced), 'gain_mse': round(pooled, 4),
+                          't': round(t, 2), 'accepted': bool(keeps)}
 
 
 def _filter_stage(ds, final, chosen, filt, steps, tick):
@@ -1109,20 +1122,16 @@ def _filter_first(ds, final, chosen, with_f, steps, tick):
     returns ``(final, chosen)``.
     """
     pooled, t, _ = fold_stats(with_f.test, final.test)
-    phys = [c for c in chosen if c not in engine.SENSOR_EFFECTS]
-    if pooled < G_MIN or not phys:
+    if pooled < G_MIN or all(c in engine.SENSOR_EFFECTS for c in chosen):
         return final, chosen
-    both = tuple(chosen) + ('channel_filter',)
-    reduced, red = backward(ds, both, {both: with_f}, drop_loss={},
-                            skip=engine.SENSOR_EFFECTS, tick=tick)
-    keeps = len(reduced) <= len(chosen) and not accepted(final.test, red.test)
-    gain, t, _ = fold_stats(red.test, final.test)
+    reduced, red, replaces = _replaces(ds, final, chosen, list(chosen) + ['channel_filter'],
+                                       with_f, engine.SENSOR_EFFECTS, tick)
     step = {'parent': list(chosen), 'stage': 'force channel low-pass before the physics it '
             'hides (full rate)', 'candidates': {'channel_filter': {
-                'gain_mse': round(pooled, 4), 'causes': list(reduced),
-                'replaces_gain_mse': round(gain, 4), 't': round(t, 2), 'accepted': bool(keeps)}}}
+                'gain_mse': round(pooled, 4), 't': round(t, 2), 'accepted': True}},
+            'replaces': replaces}
     steps.append(step)
-    if not keeps:
+    if not replaces['accepted']:
         return final, chosen
     step['added'] = 'channel_filter'
     step['loss'] = round(pooled, 4)
