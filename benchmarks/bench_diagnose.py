@@ -22,7 +22,8 @@ is printed too.
 With ``--clean-inputs`` every out-of-model case is diagnosed a second time, measured with
 noise-free displacement, velocity and current sensors (same truth, faults and force noise):
 the gap between the two unseen / floor figures is what input noise costs, the rest is the
-model.
+model; the cause figures of that pass are printed beside (a cause named or missed only with
+noisy inputs is the inputs' doing).
 
 Usage: ``python benchmarks/bench_diagnose.py [--cases 300] [--duration 12] [--jobs 2]``.
 """
@@ -80,14 +81,18 @@ def _over(score, floor):
     return score / floor if floor > 0 else np.nan
 
 
-def _clean_inputs_ratio(seed, effs, duration):
-    """Unseen / floor of the same case measured with noise-free motion and current sensors."""
+def _clean_inputs(seed, effs, duration):
+    """Diagnose the same case measured with noise-free motion and current sensors.
+
+    Returns ``(unseen / floor, physical causes, sensor causes)``.
+    """
     case = truth_cases.make_case(seed, effs, sensor_faults=None, duration=duration,
                                  measured_current=None, input_noise=False)
     u_case = case.unseen()
-    _, score, _ = _unseen_scores(_record(case.columns, f'truth-{seed}-ci'),
-                                 _record(u_case.columns, f'truth-{seed}-ci-unseen'))
-    return _over(score, truth_cases.transfer_floor(case, u_case))
+    res, score, _ = _unseen_scores(_record(case.columns, f'truth-{seed}-ci'),
+                                   _record(u_case.columns, f'truth-{seed}-ci-unseen'))
+    return (_over(score, truth_cases.transfer_floor(case, u_case)), res.physical_causes,
+            tuple(c for c in res.causes if c not in res.physical_causes))
 
 
 def run_case(job):
@@ -127,8 +132,9 @@ def run_case(job):
         driver = case.driver_contribution if case.sensor['spec'].current == 'absent' else 0.0
     try:
         res, score, b_score = _unseen_scores(rec, unseen)
-        ci_ratio = (_clean_inputs_ratio(seed, effs, duration)
-                    if clean_inputs and family == 'out-of-model' else np.nan)
+        ci_ratio, ci_causes, ci_sensor = (
+            _clean_inputs(seed, effs, duration) if clean_inputs and family == 'out-of-model'
+            else (np.nan, None, None))
     except (dataio.DataError, ValueError) as exc:
         return {'family': family, 'k': k, 'effects': effs, 'error': str(exc)}
     est = res.floor.nrmse if res.floor is not None else float('nan')
@@ -140,7 +146,8 @@ def run_case(job):
             'floor_est': est, 'unseen_ratio': _over(score, u_floor),
             'unseen_baseline_ratio': _over(b_score, u_floor),
             'unseen_ratio_own_floor': _over(score, own_floor),
-            'unseen_ratio_clean_inputs': ci_ratio, 'seed': seed,
+            'unseen_ratio_clean_inputs': ci_ratio, 'causes_clean_inputs': ci_causes,
+            'sensor_clean_inputs': ci_sensor, 'seed': seed,
             'heldout': res.heldout['extended_nrmse'], 'seconds': time.time() - t0}
 
 
@@ -188,6 +195,28 @@ def _ratio_line(label, values):
               f'max {a.max():.2f}, above 3x: {int(np.sum(a > 3))}/{a.size}')
 
 
+def _cause_counts(res):
+    """Count the cause figures of scored results.
+
+    Returns the per-effect first cause ``{e: [right, n]}``, then false alarms, channel delay
+    alone and exact pairs, each ``(hits, n)``.
+    """
+    ok = {e: [0, 0] for e in engine.EFFECTS}
+    for r in res:
+        if len(r['effects']) == 1:
+            e = r['effects'][0]
+            if r['contrib'].get(e, 0.0) >= 3.0:
+                ok[e][1] += 1
+                ok[e][0] += bool(r['causes']) and r['causes'][0] == e
+    free = [r for r in res if not r['effects']]
+    dl = [r for r in free if 'channel_delay' in r['faults']]
+    pairs = [r for r in res if len(r['effects']) == 2
+             and all(r['contrib'].get(e, 0.0) >= 3.0 for e in r['effects'])]
+    return (ok, (sum(bool(r['causes']) for r in free), len(free)),
+            (sum('channel_delay' in r['sensor'] and not r['causes'] for r in dl), len(dl)),
+            (sum(set(r['causes']) == set(r['effects']) for r in pairs), len(pairs)))
+
+
 def summarise(family, results, strict=False):
     """Print the figures of one family."""
     res = [r for r in results if r['family'] == family]
@@ -198,36 +227,31 @@ def summarise(family, results, strict=False):
           f'cases diagnosed, {len(err)} refused by the input checks')
     for r in err[:5]:
         print(f'   refused: {"+".join(r["effects"]) or "none"}: {r["error"][:110]}')
-    ok = {e: [0, 0] for e in engine.EFFECTS}
-    for r in res:
-        if len(r['effects']) == 1:
-            e = r['effects'][0]
-            if r['contrib'].get(e, 0.0) >= 3.0:
-                ok[e][1] += 1
-                ok[e][0] += bool(r['causes']) and r['causes'][0] == e
-    tot = [sum(v[0] for v in ok.values()), sum(v[1] for v in ok.values())]
+    ok, fa, dl, pk = _cause_counts(res)
     print('first physical cause right, single effects >= 3x noise:')
     for e, (a, n) in ok.items():
         print(f'  {e:24s} {a:3d}/{n:3d}')
+    tot = [sum(v[0] for v in ok.values()), sum(v[1] for v in ok.values())]
     print(f'  {"all":24s} {tot[0]:3d}/{tot[1]:3d} = {100 * tot[0] / max(tot[1], 1):.1f} %')
-    free = [r for r in res if not r['effects']]
-    fa = sum(bool(r['causes']) for r in free)
-    print(f'false alarms (physical cause on an effect-free record): {fa}/{len(free)} = '
-          f'{100 * fa / max(len(free), 1):.1f} % (the driver lag present from '
+    print(f'false alarms (physical cause on an effect-free record): {fa[0]}/{fa[1]} = '
+          f'{100 * fa[0] / max(fa[1], 1):.1f} % (the driver lag present from '
           f'{DRIVER_PRESENT:.2f}x the noise)')
     if not strict:
         old = [r for r in _scored(raw, strict, 1.0) if not r['effects']]
         print(f'  same, the driver lag present only from 1x the noise (stops 19-22): '
               f'{sum(bool(r["causes"]) for r in old)}/{len(old)}')
-    dl = [r for r in free if 'channel_delay' in r['faults']]
-    if dl:
-        hit = sum('channel_delay' in r['sensor'] and not r['causes'] for r in dl)
-        print(f'channel delay alone named channel_delay (no physics): {hit}/{len(dl)}')
-    pairs = [r for r in res if len(r['effects']) == 2
-             and all(r['contrib'].get(e, 0.0) >= 3.0 for e in r['effects'])]
-    pk = sum(set(r['causes']) == set(r['effects']) for r in pairs)
-    print(f'exact sets on pairs (both >= 3x noise): {pk}/{len(pairs)} = '
-          f'{100 * pk / max(len(pairs), 1):.1f} %')
+    if dl[1]:
+        print(f'channel delay alone named channel_delay (no physics): {dl[0]}/{dl[1]}')
+    print(f'exact sets on pairs (both >= 3x noise): {pk[0]}/{pk[1]} = '
+          f'{100 * pk[0] / max(pk[1], 1):.1f} %')
+    clean = [dict(r, causes=r['causes_clean_inputs'], sensor=r['sensor_clean_inputs'])
+             for r in raw if r.get('causes_clean_inputs') is not None]
+    if clean:
+        ok, fa, dl, pk = _cause_counts(_scored(clean, strict))
+        tot = [sum(v[0] for v in ok.values()), sum(v[1] for v in ok.values())]
+        print(f'  the same cases with noise-free displacement, velocity and current sensors: '
+              f'first cause {tot[0]}/{tot[1]}, false alarms {fa[0]}/{fa[1]}, channel delay '
+              f'alone {dl[0]}/{dl[1]}, pairs {pk[0]}/{pk[1]}')
     for key, label in (('unseen_ratio', 'extended model on an unseen record / its noise floor'),
                        ('unseen_ratio_own_floor',
                         "  over the unseen record's own noise floor (noise about its own mean: "
