@@ -91,8 +91,12 @@ def _clean_inputs(seed, effs, duration):
     u_case = case.unseen()
     res, score, _ = _unseen_scores(_record(case.columns, f'truth-{seed}-ci'),
                                    _record(u_case.columns, f'truth-{seed}-ci-unseen'))
-    return (_over(score, truth_cases.transfer_floor(case, u_case)), res.physical_causes,
-            tuple(c for c in res.causes if c not in res.physical_causes))
+    return (_over(score, truth_cases.transfer_floor(case, u_case)),) + _causes(res)
+
+
+def _causes(res):
+    """``(physical causes, sensor causes)`` of a diagnosis."""
+    return res.physical_causes, tuple(c for c in res.causes if c not in res.physical_causes)
 
 
 def run_case(job):
@@ -138,10 +142,10 @@ def run_case(job):
     except (dataio.DataError, ValueError) as exc:
         return {'family': family, 'k': k, 'effects': effs, 'error': str(exc)}
     est = res.floor.nrmse if res.floor is not None else float('nan')
+    physical, sensor = _causes(res)
     return {'family': family, 'k': k, 'effects': effs, 'faults': faults, 'shape': shape,
             'driver': driver,
-            'causes': res.physical_causes, 'sensor': tuple(c for c in res.causes
-                                                           if c not in res.physical_causes),
+            'causes': physical, 'sensor': sensor,
             'verdict': res.verdict, 'contrib': contrib, 'floor': floor,
             'floor_est': est, 'unseen_ratio': _over(score, u_floor),
             'unseen_baseline_ratio': _over(b_score, u_floor),
@@ -198,8 +202,8 @@ def _ratio_line(label, values):
 def _cause_counts(res):
     """Count the cause figures of scored results.
 
-    Returns the per-effect first cause ``{e: [right, n]}``, then false alarms, channel delay
-    alone and exact pairs, each ``(hits, n)``.
+    Returns the per-effect first cause ``{e: [right, n]}``, then the first cause over all
+    effects, false alarms, channel delay alone and exact pairs, each ``(hits, n)``.
     """
     ok = {e: [0, 0] for e in engine.EFFECTS}
     for r in res:
@@ -212,7 +216,8 @@ def _cause_counts(res):
     dl = [r for r in free if 'channel_delay' in r['faults']]
     pairs = [r for r in res if len(r['effects']) == 2
              and all(r['contrib'].get(e, 0.0) >= 3.0 for e in r['effects'])]
-    return (ok, (sum(bool(r['causes']) for r in free), len(free)),
+    return (ok, (sum(v[0] for v in ok.values()), sum(v[1] for v in ok.values())),
+            (sum(bool(r['causes']) for r in free), len(free)),
             (sum('channel_delay' in r['sensor'] and not r['causes'] for r in dl), len(dl)),
             (sum(set(r['causes']) == set(r['effects']) for r in pairs), len(pairs)))
 
@@ -227,11 +232,10 @@ def summarise(family, results, strict=False):
           f'cases diagnosed, {len(err)} refused by the input checks')
     for r in err[:5]:
         print(f'   refused: {"+".join(r["effects"]) or "none"}: {r["error"][:110]}')
-    ok, fa, dl, pk = _cause_counts(res)
+    ok, tot, fa, dl, pk = _cause_counts(res)
     print('first physical cause right, single effects >= 3x noise:')
     for e, (a, n) in ok.items():
         print(f'  {e:24s} {a:3d}/{n:3d}')
-    tot = [sum(v[0] for v in ok.values()), sum(v[1] for v in ok.values())]
     print(f'  {"all":24s} {tot[0]:3d}/{tot[1]:3d} = {100 * tot[0] / max(tot[1], 1):.1f} %')
     print(f'false alarms (physical cause on an effect-free record): {fa[0]}/{fa[1]} = '
           f'{100 * fa[0] / max(fa[1], 1):.1f} % (the driver lag present from '
@@ -247,8 +251,7 @@ def summarise(family, results, strict=False):
     clean = [dict(r, causes=r['causes_clean_inputs'], sensor=r['sensor_clean_inputs'])
              for r in raw if r.get('causes_clean_inputs') is not None]
     if clean:
-        ok, fa, dl, pk = _cause_counts(_scored(clean, strict))
-        tot = [sum(v[0] for v in ok.values()), sum(v[1] for v in ok.values())]
+        _, tot, fa, dl, pk = _cause_counts(_scored(clean, strict))
         print(f'  the same cases with noise-free displacement, velocity and current sensors: '
               f'first cause {tot[0]}/{tot[1]}, false alarms {fa[0]}/{fa[1]}, channel delay '
               f'alone {dl[0]}/{dl[1]}, pairs {pk[0]}/{pk[1]}')

@@ -323,7 +323,6 @@ def build_record(name, cols, opts=None, meta=None):
         for k in list(cols):
             if k != 'time':
                 cols[k] = _on_grid(base, cols[k])
-    stamps = base.stamps
     mask = _grid_mask(base, row_mask, gap_mask, n)
     held = True if mf is None else mf  # a frozen frame holds every motion channel
     for k in ('displacement', 'velocity'):
@@ -420,7 +419,7 @@ def build_record(name, cols, opts=None, meta=None):
     return Record(name=name, time=base.time, displacement=x, velocity=v, force=f, i_in=i_in,
                   input_kind=kind, dt=dt, command=command, temperature=cols.get('temperature'),
                   velocity_source=vsrc, meta=dict(meta or {}), mask=mask,
-                  findings=tuple(findings), stamps=stamps, stamp_index=base.index)
+                  findings=tuple(findings), stamps=base.stamps, stamp_index=base.index)
 
 
 def _apply_units(cols, units, defaults=None):
