@@ -649,12 +649,13 @@ def _search_order(effects, new):
     return names
 
 
-def loop_restarts(ds, fit0, k1_factors=(1,)):
+def loop_restarts(ds, fit0, k1_factors=(1,), mapper=map):
     """Best of ``fit0`` and its refits with the pre-yield loop searched anew (one sweep each).
 
     Each restart scales k1 by one of ``k1_factors`` (a model without a spring keeps k1 = 0)
     and searches the loop on its full grids; the lowest training SSE on the inner folds wins,
-    ``fit0`` included. The effects are ``fit0``'s; no outer block is read.
+    ``fit0`` included (ties: the earlier). The effects are ``fit0``'s; no outer block is read.
+    ``mapper(fn, factors)`` runs the independent restarts (e.g. on threads), in order.
 
     With ``K1_STARTS``: a series spring in front of the damping element draws a pre-yield
     loop too (seed 000 Fig. 7), so k1 and the loop's length, exponent and unloading shape
@@ -662,11 +663,13 @@ def loop_restarts(ds, fit0, k1_factors=(1,)):
     Bouc-Wen damper behind a 6.2e5 N/m spring: k1 4x too stiff, the loop's unloading shape
     at its bound, a training SSE 8x that of the truth's parameters).
     """
-    best = fit0
-    for fac in k1_factors:
+    def restart(fac):
         eta = dict(fit0.eta)
         eta['k_series'] *= fac
-        r = fit(ds, fit0.effects, eta, fit0.theta, new=('hysteresis',), sweeps=1)
+        return fit(ds, fit0.effects, eta, fit0.theta, new=('hysteresis',), sweeps=1)
+
+    best = fit0
+    for r in mapper(restart, k1_factors):
         if r.sse < best.sse:
             best = r
     return best
