@@ -772,7 +772,7 @@ def test_block_errors_add_up_to_the_fold_errors():
 
 
 @pytest.mark.parametrize('seed', [1, 2, 3])
-def test_spring_and_loop_restarts_leave_a_wrong_k1_valley(seed):
+def test_spring_and_loop_restarts_leave_a_wrong_k1_valley(seed, monkeypatch):
     """Bouc-Wen damper (truth integrator) behind a series spring of 5-9e5 N/m.
 
     Started in the valley of a 4x stiffer spring with the loop's shape at its bound, the
@@ -795,12 +795,8 @@ def test_spring_and_loop_restarts_leave_a_wrong_k1_valley(seed):
     assert best.sse < 1.2 * at_truth.sse
     assert best.eta['k_series'] == pytest.approx(t.k_series, rel=0.15)
     if seed == 1:  # the restarts on threads (as diagnose runs them) give the same fit
-        jobs = diagnose.JOBS
-        diagnose.JOBS = 2
-        try:
-            threaded = engine.loop_restarts(ds, wrong, engine.K1_STARTS, mapper=diagnose._map)
-        finally:
-            diagnose.JOBS = jobs
+        monkeypatch.setattr(diagnose, 'JOBS', 2)
+        threaded = engine.loop_restarts(ds, wrong, engine.K1_STARTS, mapper=diagnose._map)
         assert threaded.sse == best.sse and threaded.eta == best.eta
 
 

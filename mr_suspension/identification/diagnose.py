@@ -377,6 +377,18 @@ def compatible(effects, e, exclusive=EXCLUSIVE):
     return not any(e in ex and others & ex for ex in exclusive)
 
 
+def _shape_may_join(final, chosen):
+    """Return True if ``yield_shape`` may join the model ``final`` of causes ``chosen``.
+
+    Not named yet, room for a cause, and no loop that carries the whole yield force: beside
+    a loop only where the loop keeps a share ``w_h < 1`` (with ``w_h = 1`` the loop replaces
+    the static sigmoid, whose shape then draws nothing).
+    """
+    e = 'yield_shape'
+    beside = 'hysteresis' in chosen and final.eta[engine.SHARE] < 1.0
+    return e not in chosen and _room(chosen) and (compatible(chosen, e) or beside)
+
+
 def partial_loop(chosen, e, share=True):
     """Return True if ``e`` joins ``chosen`` as a loop beside a named static yield shape.
 
@@ -944,8 +956,7 @@ def _hysteresis_share(ds, final, chosen, physics, tick):
     if ok:
         final = child
     # A loop that entered with its share (``partial_loop``, ``_lagging_force_pays``) has it.
-    if (final.eta[engine.SHARE] >= 1.0 or 'yield_shape' in chosen
-            or 'yield_shape' not in physics or not _room(chosen)):
+    if 'yield_shape' not in physics or not _shape_may_join(final, chosen):
         return final, chosen, step
     shaped = engine.fit(ds, tuple(final.effects) + ('yield_shape',), start_eta=final.eta,
                         start_theta=final.theta, new=('yield_shape',), sweeps=1,
@@ -1319,12 +1330,9 @@ def _shape_again(ds, final, chosen, steps, tick):
     of every test added after the selection). Appends its step record to ``steps``; returns
     ``(final, chosen)``.
     """
-    e = 'yield_shape'
-    # Beside a loop only where the loop carries a share of the yield force (``partial_loop``).
-    beside = 'hysteresis' in chosen and final.eta[engine.SHARE] < 1.0
-    if e in chosen or not _room(chosen) or not (compatible(chosen, e) or beside):
+    if not _shape_may_join(final, chosen):
         return final, chosen
-    final, chosen, step = _fine_stage(ds, final, chosen, [e], tick,
+    final, chosen, step = _fine_stage(ds, final, chosen, ['yield_shape'], tick,
                                       'yield shape again (full rate)')
     steps.append(step)
     return final, chosen
