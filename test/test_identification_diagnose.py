@@ -169,3 +169,28 @@ def test_active_block_rule_needs_enough_moved_blocks():
     child, parent = _local_effect(+1)
     child.prediction[parent.block_id >= 5] = 0.0  # now only blocks 0 and 1 move
     assert diagnose.active_stats(child, parent) == (0.0, 2)
+
+
+def _fold_gain(gain, t):
+    """Parent and child of five equal folds: fold gains of mean ``gain`` and fold t ``t``."""
+    z = np.array([-1.5, -0.5, 0.0, 0.5, 1.5])
+    d = gain + z * gain * np.sqrt(z.size) / (t * np.std(z, ddof=1))
+    block_fold = np.arange(5)
+    block_id = np.zeros(10, dtype=int)  # nothing moves: no active-block evidence
+    parent = _Fit(np.full(5, 1000.0), np.zeros(10), block_id, block_fold)
+    child = _Fit(1000.0 * (1.0 - d), np.zeros(10), block_id, block_fold)
+    return child, parent
+
+
+@pytest.mark.parametrize('gain, t, named', [
+    (0.05, 2.5, False),  # a small gain at the full rate needs T_FINE
+    (0.05, 3.2, True),
+    (0.25, 2.5, True),  # a gain of G_FINE or more needs only the selection's T_MIN
+    (0.25, 1.8, False),
+])
+def test_full_rate_bar_depends_on_the_gain(gain, t, named):
+    child, parent = _fold_gain(gain, t)
+    pooled, t_fold, _ = diagnose.fold_stats(child.test, parent.test)
+    assert pooled == pytest.approx(gain) and t_fold == pytest.approx(t)
+    assert diagnose._pays(child, parent, diagnose.T_FINE)[0] is named
+    assert diagnose._pays(child, parent)[0] is (t >= diagnose.T_MIN)  # the selection's bar
