@@ -109,10 +109,14 @@ def test_constant_current_record_is_handled():
     assert np.isfinite(rep['baseline']['heldout_nrmse'])
 
 
-def test_threaded_fits_give_the_serial_result(monkeypatch):
+@pytest.mark.parametrize('effects', [('series_stiffness', 'current_lag'),
+                                     ('current_lag_asymmetric', 'series_stiffness')])
+def test_threaded_fits_give_the_serial_result(monkeypatch, effects):
     # Independent fits run on threads (kernels drop the GIL); each is deterministic on its own,
-    # so the selection, parameters and held-out errors must equal the serial run's.
-    rec, _ = synthetic.make_record(('series_stiffness', 'current_lag'), seed=3, duration=8.0)
+    # so the selection, parameters and held-out errors must equal the serial run's. Two
+    # forward steps (each child's re-polish runs beside the parent's fairness refit) and an
+    # asymmetric lag (its symmetric rival beside the full-rate refits).
+    rec, _ = synthetic.make_record(effects, seed=3, duration=8.0)
     out = {}
     for jobs in (1, 2):
         monkeypatch.setattr(diagnose, 'JOBS', jobs)

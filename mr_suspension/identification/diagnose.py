@@ -762,12 +762,30 @@ def _forward(ds, base, sensors, physics, tick, share):
     candidates = list(physics) + [e for e in sensors if e not in chosen]
     stage_amb = []
     pool = dict(singles)
+
+    def grown(best):
+        if best == UPGRADE:
+            return [('current_lag_asymmetric' if c == 'current_lag' else c) for c in chosen]
+        return chosen + [best]
+
+    def polish(effects, f):
+        # Re-polish the parent so a child is not credited with the parent's own refinement.
+        return lambda: engine.fit(ds, tuple(effects), start_eta=f.eta, start_theta=f.theta,
+                                  new=())
+
     while pool:
         best, amb, stats = _choose(pool, current)
+        polished = {}
         if best is not None:
-            # Fairness: let the parent start from the best child's parameters too.
-            alt = engine.fit(ds, tuple(chosen), start_eta=pool[best].eta,
-                             start_theta=current.theta, new=())
+            # Fairness: let the parent start from the best child's parameters too. The
+            # re-polish of that child (below) runs alongside; redone if the best changes.
+            jobs = {'alt': (None, lambda f=pool[best]: engine.fit(
+                ds, tuple(chosen), start_eta=f.eta, start_theta=current.theta, new=()))}
+            if _room(grown(best)):
+                jobs[best] = (None, polish(grown(best), pool[best]))
+            out = _parallel(jobs)
+            alt = out.pop('alt')
+            polished = out
             if alt.sse < current.sse:
                 current = alt
                 fits[tuple(chosen)] = alt
@@ -776,17 +794,12 @@ def _forward(ds, base, sensors, physics, tick, share):
         stage_amb += [p for p in amb if p not in stage_amb]
         if best is None:
             break
-        if best == UPGRADE:
-            chosen = [('current_lag_asymmetric' if c == 'current_lag' else c) for c in chosen]
-        else:
-            chosen.append(best)
+        chosen = grown(best)
         current = pool[best]
         fits[tuple(chosen)] = current
         if not _room(chosen):
             break
-        # Re-polish the parent so a child is not credited with the parent's own refinement.
-        current = engine.fit(ds, tuple(chosen), start_eta=current.eta,
-                             start_theta=current.theta, new=())
+        current = polished[best] if best in polished else polish(chosen, current)()
         fits[tuple(chosen)] = current
         pool = _children(ds, chosen, candidates, current, tick, share)
     return chosen, fits, singles, steps, stage_amb, parent0
@@ -987,6 +1000,10 @@ def _full_rate(ds, base, final, chosen, drop_loss, ds_search, final_search, tick
         jobs['final'] = ('extended (full rate)', lambda: engine.fit(
             ds, tuple(final.effects), start_eta=final.eta, start_theta=final.theta, new=(),
             sweeps=1, joint=JOINT_FEV, local=(0.5, 1.0, 2.0)))
+    if 'current_lag_asymmetric' in chosen:
+        # Needs the search-rate model only: on the thread the short baseline refit leaves.
+        jobs['sym'] = ('symmetric lag (search rate)',
+                       lambda: _symmetric_lag_fit(ds_search, final_search))
     out = _parallel(jobs, tick)
     base = out['base']
     if not chosen:
@@ -1000,8 +1017,7 @@ def _full_rate(ds, base, final, chosen, drop_loss, ds_search, final_search, tick
         # Keep rise != fall only if it pays (nested: clear at the search rate, or at full rate).
         # The full-rate check runs alongside the backward check (it is redone if that drops
         # a cause).
-        sub = _symmetric_lag_fit(ds_search, final_search)
-        if fold_stats(final_search.test, sub.test)[0] < CLEAR_LOSS:
+        if fold_stats(final_search.test, out['sym'].test)[0] < CLEAR_LOSS:
             start = final
             sym = _background(lambda: _symmetric_lag_fit(ds, start, local=True))
     chosen, final = backward(ds, chosen, fits, drop_loss=drop_loss, skip=clear, tick=tick)
