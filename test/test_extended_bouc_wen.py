@@ -15,17 +15,19 @@ def _sine(n=3000, dt=1e-3, amp=0.005, freq=1.5):
     return t, amp * np.sin(w * t), amp * w * np.cos(w * t), dt
 
 
-def _reference_state(v, dt, x_h, n, r):
-    """Normalised Bouc-Wen state by scipy's adaptive RK45, rate held over each step."""
-    z = 0.0
-    out = np.empty(v.size)
-    for k, u in enumerate(v):
-        def rhs(_t, zz, u=u):
-            a = abs(zz[0]) ** n
-            return [u / x_h * (1.0 - a * ((1.0 - r) * np.sign(u * zz[0]) + r))]
-        z = solve_ivp(rhs, (0.0, dt), [z], rtol=1e-10, atol=1e-12).y[0, -1]
-        out[k] = z
-    return out
+def _reference_state(t, rate, x_h, n, r):
+    """Normalised Bouc-Wen state under the continuous stroke rate ``rate(t)``, by scipy's RK45."""
+    def rhs(tt, zz):
+        u = rate(tt)
+        a = abs(zz[0]) ** n
+        return [u / x_h * (1.0 - a * ((1.0 - r) * np.sign(u * zz[0]) + r))]
+    return solve_ivp(rhs, (t[0], t[-1]), [0.0], t_eval=t, rtol=1e-10, atol=1e-12,
+                     max_step=2e-4).y[0]
+
+
+def _sine_rate(amp, freq):
+    w = 2 * np.pi * freq
+    return lambda tt: amp * w * np.cos(w * tt)
 
 
 @pytest.mark.parametrize('n_h,r_h,x_h', [(1.0, 0.0, 5e-4), (2.0, 0.3, 5e-4), (3.0, -0.4, 2e-4),
@@ -35,8 +37,12 @@ def test_state_matches_an_independent_integrator(n_h, r_h, x_h):
     p = ExtendedDamperParams(c0=0.0, c1=0.0, fy0=1.0, fy1=0.0, x_h=x_h, hyst_n=n_h,
                              hyst_r=r_h)
     y = simulate_extended(p.to_array(), x, v, np.zeros_like(t), dt)[2]
-    ref = _reference_state(v, dt, x_h, n_h, r_h)
-    assert np.max(np.abs(y - ref)) < 2e-4
+    ref = _reference_state(t, _sine_rate(0.005, 1.5), x_h, n_h, r_h)
+    # The kernel starts from rest, the sine at full rate: compared once the loop has closed
+    # (the state forgets its start at +-1). The rate held over each step instead of the
+    # trapezoid's stroke ran the loop half a step early: errors of 0.013-0.033 here.
+    k0 = int(np.argmax(np.abs(ref) > 0.99))
+    assert np.max(np.abs(y[k0:] - ref[k0:])) < 3e-3
     assert np.max(np.abs(y)) <= 1.0
     # A closed loop: the state saturates at +-1 on each stroke of 5 mm >> x_h.
     assert np.max(y) > 0.99 and np.min(y) < -0.99
@@ -96,9 +102,10 @@ def test_direction_asymmetry_scales_the_yield_force_by_its_state(rho):
     p = ExtendedDamperParams(c0=c, c1=0.0, fy0=fy, fy1=0.0, v_y=vy, x_h=x_h, hyst_n=2.0,
                              hyst_r=0.2, rho=rho)
     f = simulate_extended(p.to_array(), x, v, i, dt)[0]
-    z = _reference_state(v, dt, x_h, 2.0, 0.2)
+    z = _reference_state(t, _sine_rate(0.006, 1.5), x_h, 2.0, 0.2)
     ref = c * v * (1.0 + rho * np.tanh(v / vy)) + fy * z * (1.0 + rho * z)
-    assert np.max(np.abs(f - ref)) < 0.2
+    k0 = int(np.argmax(np.abs(z) > 0.99))  # the kernel starts from rest: once the loop closed
+    assert np.max(np.abs(f[k0:] - ref[k0:])) < 0.5  # 0.2 % of fy
     static = ExtendedDamperParams(c0=c, c1=0.0, fy0=fy, fy1=0.0, v_y=vy, rho=rho)
     f = simulate_extended(static.to_array(), x, v, i, dt)[0]
     y = np.tanh(v / vy)
@@ -124,12 +131,13 @@ def test_fit_recovers_a_bouc_wen_loop_written_apart():
     rng = np.random.default_rng(4)
     dt = 2e-3
     t = np.arange(0, 16.0, dt)
-    x = (0.006 * np.sin(2 * np.pi * 1.1 * t) + 0.003 * np.sin(2 * np.pi * 2.9 * t + 1.0)
-         + 0.0015 * np.sin(2 * np.pi * 0.43 * t))
+    parts = ((0.006, 1.1, 0.0), (0.003, 2.9, 1.0), (0.0015, 0.43, 0.0))
+    x = sum(a * np.sin(2 * np.pi * f * t + ph) for a, f, ph in parts)
     v = np.gradient(x, dt)
     cur = np.repeat(rng.choice([0.1, 0.5, 0.9], size=t.size // 500 + 1), 500)[:t.size]
     n_h, r_h, x_h = 2.2, 0.25, 6e-4
-    z = _reference_state(v, dt, x_h, n_h, r_h)
+    z = _reference_state(t, lambda tt: sum(a * 2 * np.pi * f * np.cos(2 * np.pi * f * tt + ph)
+                                           for a, f, ph in parts), x_h, n_h, r_h)
     force = 5.0 + (700.0 + 900.0 * cur) * v + (120.0 + 600.0 * cur) * z
     force = force + rng.normal(0.0, 1.0, t.size)
 

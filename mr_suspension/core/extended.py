@@ -25,12 +25,14 @@ neutral value: ``i_s = 0``, ``x_h = 0``, ``k1 = 0``, ``kg1 = kg2 = 0``, ``kappa 
 ``rho = 0``. The hysteretic state is the normalised Bouc-Wen state (Wen 1976, Spencer et al.
 1997: ``|z| <= 1``, pre-yield length ``x_h``, exponent ``n_h >= 1``, ``r_h = gamma / (beta +
 gamma)`` shapes the unloading branch); ``n_h = 1, r_h = 0, w_h = 1`` is the Dahl model
-``dz/dx_d = (1 - z sgn u) / x_h`` used before. Its step is exact for a constant ``u`` over the
-step: in the direction of motion ``zeta = z sgn u`` obeys the autonomous
-``dzeta/dxi = g(zeta)``, ``xi = |u| t / x_h``, so ``zeta+ = zeta + Z(xi0 + |u| dt / x_h) - Z(xi0)``
-with ``Z`` the solution from ``zeta = -1`` tabulated once per parameter set (RK4, cubic Hermite
-look-up, ``bw_table``) and ``xi0 = Z^-1(zeta)``; for Dahl it is the closed form
-``z+ = sgn u + (z - sgn u) exp(-|u| dt / x_h)``.
+``dz/dx_d = (1 - z sgn u) / x_h`` used before. The loop is rate-independent: its state follows
+the element's stroke ``d = (u_n-1 + u_n) dt / 2`` over the step (trapezoid; split at a
+reversal inside the step; ``u_n dt`` ran the loop half a step ahead of the motion). In one
+direction ``zeta = z sgn d`` obeys the autonomous ``dzeta/dxi = g(zeta)``, ``xi = |x_d| /
+x_h``, so ``zeta+ = zeta + Z(xi0 + |d| / x_h) - Z(xi0)`` with ``Z`` the solution from
+``zeta = -1`` tabulated once per parameter set (RK4, cubic Hermite look-up, ``bw_table``) and
+``xi0 = Z^-1(zeta)``; for Dahl it is the closed form
+``z+ = sgn d + (z - sgn d) exp(-|d| / x_h)``.
 
 The state vector ``s`` (length ``EXT_NSTATE``, all zeros = at rest) holds
 ``[z, F_d, E, u, Y, M, g, dF_d/du, F_d,n-1, dt_n-1]`` with ``Y = M_th y (1 + rho y)`` and
@@ -237,27 +239,45 @@ def _bw_xi(p, zeta):
 
 
 @njit(cache=True, fastmath=True, error_model='numpy')
-def _hysteretic(p, z, u, dt):
-    """Step of the Bouc-Wen state over ``dt`` at constant ``u``: ``(z+, dz+/du)``."""
-    a = dt / p[P_XH]
+def _loop_step(p, z, d):
+    """Loop state after a stroke of ``d x_h`` in one direction: ``(z+, dz+/dd)`` (exact)."""
     if p.shape[0] <= P_TAB:  # Dahl: closed form
-        if u > 0.0:
-            e = math.exp(-a * u)
-            return 1.0 + (z - 1.0) * e, a * (1.0 - z) * e
-        if u < 0.0:
-            e = math.exp(a * u)
-            return -1.0 + (z + 1.0) * e, a * (z + 1.0) * e
-        return z, a * (1.0 - abs(z))
+        if d > 0.0:
+            e = math.exp(-d)
+            return 1.0 + (z - 1.0) * e, (1.0 - z) * e
+        if d < 0.0:
+            e = math.exp(d)
+            return -1.0 + (z + 1.0) * e, (z + 1.0) * e
+        return z, 1.0 - abs(z)
     n = p[P_HN]
     r = p[P_HR]
-    if u == 0.0:
-        return z, 0.5 * a * (_bw_g(z, n, r) + _bw_g(-z, n, r))
-    sg = 1.0 if u > 0.0 else -1.0
+    if d == 0.0:
+        return z, 0.5 * (_bw_g(z, n, r) + _bw_g(-z, n, r))
+    sg = 1.0 if d > 0.0 else -1.0
     zeta = sg * z
     xi0 = _bw_xi(p, zeta)
-    zn = zeta + _bw_at(p, xi0 + a * abs(u)) - _bw_at(p, xi0)
+    zn = zeta + _bw_at(p, xi0 + abs(d)) - _bw_at(p, xi0)
     zn = min(max(zn, -1.0), 1.0)
-    return sg * zn, a * _bw_g(zn, n, r)
+    return sg * zn, _bw_g(zn, n, r)
+
+
+@njit(cache=True, fastmath=True, error_model='numpy')
+def _hysteretic(p, z, u0, u, dt):
+    """Loop state over a step with ``u`` linear from ``u0`` to ``u``: ``(z+, dz+/du)``.
+
+    The loop is rate-independent, so the state follows the element's stroke over the step,
+    the trapezoid ``(u0 + u) dt / 2`` (split at a reversal inside the step). Taking ``u dt``
+    (``u`` held over the step) ran the loop half a step ahead of the motion: a fit read that
+    as a force-channel delay of half a sample on Bouc-Wen dampers.
+    """
+    a = 0.5 * dt / p[P_XH]
+    if u0 * u >= 0.0:
+        zn, dz = _loop_step(p, z, a * (u0 + u))
+        return zn, a * dz
+    w = u0 / (u0 - u)  # share of the step before the reversal
+    zm = _loop_step(p, z, a * u0 * w)[0]
+    zn, dz = _loop_step(p, zm, a * u * (1.0 - w))
+    return zn, a * (1.0 - w) * dz
 
 
 @njit(cache=True, fastmath=True, error_model='numpy')
@@ -281,7 +301,7 @@ def _element(p, s, u, i, dt):
         dy = (1.0 - y * y) / vy
     zh = 0.0
     if xh > 0.0:
-        zh, dzh = _hysteretic(p, s[S_Z], u, dt)
+        zh, dzh = _hysteretic(p, s[S_Z], s[S_U], u, dt)
         wh = p[P_HW]
         if wh >= 1.0:
             y = zh

@@ -854,6 +854,11 @@ def _lagging_force_pays(ds, base, singles, physics, steps, tick, share):
     b = min(others, key=lambda e: singles[e].test.sum())
     pair = engine.fit(ds, ('hysteresis', b), start_eta=base.eta, start_theta=base.theta,
                       new=(b, 'hysteresis'), extra=(engine.SHARE,))
+    if b == 'series_stiffness' and pair.eta['k_series'] > 0:
+        # A spring and a loop trade along several valleys: from one start the pair can end
+        # in a poor one and leave room for a delay standing in for the spring (a Bouc-Wen
+        # damper behind a soft spring kept a 16 ms delay and lost its spring).
+        pair = engine.loop_restarts(ds, pair, engine.K1_STARTS, mapper=_map)
     ok = _delay_on_top(ds, pair, steps, tick, f'partial hysteresis + {b}', 'channel_delay on '
                        'top of a partial pre-yield loop and the best physical single, against '
                        'the two without it')
