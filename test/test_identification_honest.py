@@ -898,3 +898,21 @@ def test_a_driver_lag_that_gains_much_at_a_modest_fold_t_is_named():
     assert 'direction_asymmetry' in res.physical_causes
     unseen = case.unseen()
     assert est.score(_record(unseen.columns)) < 2.0 * cases.transfer_floor(case, unseen)
+
+
+def test_a_spring_screened_on_top_of_a_named_loop_gets_the_restarts():
+    """An algebraic damper behind a soft series spring (8.3e4 N/m), no velocity channel.
+
+    Benchmark case (``bench_diagnose`` seed 1, case 297; truth integrator and sensors). A
+    spring in front of the yield element draws a loop, and the loop is named first; the
+    spring screened on top of it from one start gained 0.14 at fold t 1.5 and was refused
+    (unseen / floor 9.2). Refitted with the restarts over k1 it gains 0.35 at t 10.
+    """
+    case = cases.make_case(100003 + 297, ('series_stiffness',), sensor_faults=None,
+                           duration=12.0, measured_current=None)
+    assert case.truth.k_series < 1e5 and 'velocity' not in case.columns
+    res = diagnose.Diagnosis().fit([_record(case.columns)])
+    assert 'series_stiffness' in res.physical_causes
+    step = [s for s in res.steps if s.get('parent') == ['hysteresis']
+            and 'series_stiffness' in s.get('candidates', {})]
+    assert step and step[0]['candidates']['series_stiffness']['accepted']

@@ -775,6 +775,8 @@ def _forward(ds, base, sensors, physics, tick, share):
 
     while pool:
         best, amb, stats = _choose(pool, current)
+        if _pair_restarted(ds, pool, chosen, stats):
+            best, amb, stats = _choose(pool, current)
         polished = {}
         if best is not None:
             # Fairness: let the parent start from the best child's parameters too. The
@@ -803,6 +805,27 @@ def _forward(ds, base, sensors, physics, tick, share):
         fits[tuple(chosen)] = current
         pool = _children(ds, chosen, candidates, current, tick, share)
     return chosen, fits, singles, steps, stage_amb, parent0
+
+
+def _pair_restarted(ds, pool, chosen, stats):
+    """Refit with restarts over k1 a spring or loop child that completes the pair and gains.
+
+    A spring and a loop trade along several valleys (``engine.loop_restarts``); screened on
+    top of the other from one start, the child can end in a poor one and fail the selection's
+    rule although it gains (a soft spring on top of a named loop: gain 0.14 at fold t 1.5).
+    A child that completes the pair, gains at least ``G_MIN`` and is not accepted is refitted
+    with the restarts (in ``pool``) before the choice is made again. Returns True if one was.
+    """
+    done = False
+    for e in engine.SPRING_LOOP:
+        s = stats.get(e)
+        if (e in pool and s is not None and not s['accepted'] and s['gain_mse'] >= G_MIN
+                and set(engine.SPRING_LOOP) <= set(chosen) | {e}
+                and pool[e].eta['k_series'] > 0):
+            f = engine.loop_restarts(ds, pool[e], engine.K1_STARTS, mapper=_map)
+            done = done or f is not pool[e]
+            pool[e] = f
+    return done
 
 
 def _lagging_force_pays(ds, base, singles, physics, steps, tick, share):
