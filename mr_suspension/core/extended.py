@@ -277,6 +277,7 @@ def _hysteretic(p, z, u0, u, dt):
     w = u0 / (u0 - u)  # share of the step before the reversal
     zm = _loop_step(p, z, a * u0 * w)[0]
     zn, dz = _loop_step(p, zm, a * u * (1.0 - w))
+    # The slope holds the reversal's instant (w moves with u too): it only steers Newton.
     return zn, a * (1.0 - w) * dz
 
 

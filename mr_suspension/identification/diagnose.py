@@ -783,8 +783,9 @@ def _forward(ds, base, sensors, physics, tick, share):
             # re-polish of that child (below) runs alongside; redone if the best changes.
             jobs = {'alt': (None, lambda f=pool[best]: engine.fit(
                 ds, tuple(chosen), start_eta=f.eta, start_theta=current.theta, new=()))}
-            if _room(grown(best)):
-                jobs[best] = (None, polish(grown(best), pool[best]))
+            nxt = grown(best)
+            if _room(nxt):
+                jobs[best] = (None, polish(nxt, pool[best]))
             out = _parallel(jobs)
             alt = out.pop('alt')
             polished = out
@@ -822,7 +823,7 @@ def _pair_restarted(ds, pool, chosen, stats):
         if (e in pool and s is not None and not s['accepted'] and s['gain_mse'] >= G_MIN
                 and set(engine.SPRING_LOOP) <= set(chosen) | {e}
                 and pool[e].eta['k_series'] > 0):
-            f = engine.loop_restarts(ds, pool[e], engine.K1_STARTS, mapper=_map)
+            f = _restarts(ds, pool[e])
             done = done or f is not pool[e]
             pool[e] = f
     return done
@@ -881,7 +882,7 @@ def _lagging_force_pays(ds, base, singles, physics, steps, tick, share):
         # A spring and a loop trade along several valleys: from one start the pair can end
         # in a poor one and leave room for a delay standing in for the spring (a Bouc-Wen
         # damper behind a soft spring kept a 16 ms delay and lost its spring).
-        pair = engine.loop_restarts(ds, pair, engine.K1_STARTS, mapper=_map)
+        pair = _restarts(ds, pair)
     ok = _delay_on_top(ds, pair, steps, tick, f'partial hysteresis + {b}', 'channel_delay on '
                        'top of a partial pre-yield loop and the best physical single, against '
                        'the two without it')
@@ -1480,9 +1481,14 @@ def _floor(records):
         return None
 
 
+def _restarts(ds, fit, k1_factors=engine.K1_STARTS):
+    """``engine.loop_restarts`` of ``fit`` with its independent restarts on the threads."""
+    return engine.loop_restarts(ds, fit, k1_factors, mapper=_map)
+
+
 def _loop_restarts(ds, final, stage, tick, k1_factors=(1,)):
-    """``engine.loop_restarts`` on the final model; returns ``(fit, step)`` for the report."""
-    best = engine.loop_restarts(ds, final, k1_factors, mapper=_map)
+    """``_restarts`` of the final model; returns ``(fit, step)`` for the report."""
+    best = _restarts(ds, final, k1_factors)
     tick(stage)
     return best, {'stage': stage, 'parent': list(final.effects), 'candidates': {},
                   'k_series': [final.eta['k_series'], best.eta['k_series']],
