@@ -52,6 +52,11 @@ T_FINE = 3.0  # fold t the extra full-rate test needs (after the selection: a st
 G_FINE = 0.1  # held-out gain at which a full-rate candidate needs only T_MIN (see ``_pays``)
 RESCREEN_T = T_MIN  # fold t of a physical cause screened again after a full-rate timing
 JOBS = max(1, min(4, os.cpu_count() or 1))  # threads for independent fits (kernels drop the GIL)
+# Candidate fits that take longest, started first on the threads (``_parallel``): the loop
+# (Bouc-Wen kernel, fitted twice where its share is testable), the yield shape (a grid and a
+# simplex on the exponent), then the spring (Newton in every step) and the current timing.
+LONGEST = {'hysteresis': 5, 'yield_shape': 4, 'series_stiffness': 3, 'current_delay': 2,
+           'current_lag_asymmetric': 1}
 NESTED = {('current_lag', 'current_lag_asymmetric')}
 LOOPS = ('series_stiffness', 'hysteresis')  # what a force lagging the motion resembles
 EXCLUSIVE = ({'current_lag', 'current_lag_asymmetric'}, {'hysteresis', 'yield_shape'})
@@ -491,7 +496,10 @@ def _parallel(jobs, tick=None):
                 tick(jobs[k][0])
         return out
     with ThreadPoolExecutor(min(JOBS, len(keys))) as ex:
-        futs = {k: ex.submit(jobs[k][1]) for k in keys}
+        # Longest first (a fit started last must not run alone at the end); results and
+        # ticks keep the callers' order.
+        futs = {k: ex.submit(jobs[k][1])
+                for k in sorted(keys, key=lambda k: -LONGEST.get(k, 0))}
         out = {}
         for k in keys:
             out[k] = futs[k].result()
