@@ -916,3 +916,61 @@ def test_a_spring_screened_on_top_of_a_named_loop_gets_the_restarts():
     step = [s for s in res.steps if s.get('parent') == ['hysteresis']
             and 'series_stiffness' in s.get('candidates', {})]
     assert step and step[0]['candidates']['series_stiffness']['accepted']
+
+
+def test_a_driver_dead_time_beyond_three_named_causes_is_named_last():
+    """An algebraic damper with a partial loop and a direction asymmetry, current not measured.
+
+    Benchmark case (``bench_diagnose`` seed 1, case 262; truth integrator and sensors). The
+    selection names its three causes (loop, asymmetry, yield shape), which fills
+    ``MAX_CAUSES``; the truth's driver then still delays the force of every command edge by
+    a sample (1.7x the noise), and with no room left the full-rate timing was never judged:
+    the unseen record of the same damper was predicted at 4.1 noise floors. The model stays
+    above ``ROOM_FACTOR`` floors on its inner folds, so one more cause is looked for.
+    """
+    case = cases.make_case(100003 + 262, ('hysteresis', 'direction_asymmetry'),
+                           sensor_faults=None, duration=12.0, measured_current=None)
+    assert case.sensor['spec'].current == 'absent' and case.driver_contribution > 1.0
+    est = diagnose.Diagnosis()
+    res = est.fit([_record(case.columns)])
+    step = [s for s in res.steps if s.get('stage', '').startswith('a cause beyond')]
+    assert len(step) == 1 and step[0]['heldout_rms_over_floor'] > diagnose.ROOM_FACTOR
+    assert step[0].get('added') == 'current_delay'
+    phys = res.physical_causes
+    assert len(phys) == diagnose.MAX_CAUSES + 1 and phys[-1] == 'current_delay'
+    assert {'hysteresis', 'direction_asymmetry'} <= set(phys)
+    assert res.final.eta['dead_time'] == pytest.approx(1e-3, abs=0.5e-3)
+    unseen = case.unseen()
+    assert est.score(_record(unseen.columns)) < 2.5 * cases.transfer_floor(case, unseen)
+
+
+class _Final:
+    def __init__(self, rms):
+        self.test = np.full(5, rms ** 2 * 100.0)
+        self.n_test = np.full(5, 100.0)
+
+
+def test_a_cause_beyond_the_limit_is_sought_only_where_the_model_stays_above_the_floor(
+        monkeypatch):
+    calls = []
+
+    def stage(ds, final, chosen, cands, tick, label, t_min=diagnose.T_FINE, out=None):
+        calls.append((tuple(chosen), tuple(cands), t_min))
+        return final, chosen, {'stage': label, 'candidates': {}}
+
+    monkeypatch.setattr(diagnose, '_fine_stage', stage)
+    full = ['hysteresis', 'direction_asymmetry', 'yield_shape']
+    physics = list(engine.EFFECTS)
+    floor = noise.NoiseFloor(rms=10.0, nrmse=0.01, pairs=500, max_distance=0.02, method='test')
+    for chosen, fl, rms in ((full[:2], floor, 40.0), (full, None, 40.0), (full, floor, 14.0)):
+        out = diagnose._beyond_room(None, _Final(rms), chosen, physics, fl, lambda *a: None)
+        assert out[2] is None and out[1] == chosen
+    assert not calls
+    final = _Final(16.0)
+    out = diagnose._beyond_room(None, final, full + ['channel_delay'], physics, floor,
+                                lambda *a: None)
+    assert out[2]['heldout_rms_over_floor'] == pytest.approx(1.6)
+    (chosen, cands, t_min), = calls
+    assert t_min == diagnose.T_FINE and not set(cands) & set(chosen)
+    assert 'current_delay' in cands and 'series_stiffness' in cands
+    assert all(diagnose.compatible(list(chosen), e) for e in cands)
