@@ -69,12 +69,18 @@ def _record(columns, name):
 
 
 def _unseen_scores(rec, unseen):
-    """Fit ``rec``; return the fit and its unseen NRMSE (extended, baseline)."""
+    """Fit ``rec``; return the fit, its unseen NRMSE (extended, baseline) and a flag.
+
+    The flag: ``predict`` warned that the unseen record leaves the fitted range.
+    """
     d = diagnose.Diagnosis()
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore')
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
         res = d.fit([rec])
-        return res, d.score(unseen), d.score(unseen, 'baseline')
+        del caught[:]
+        score = d.score(unseen)
+        outside = any('outside the range' in str(w.message) for w in caught)
+        return res, score, d.score(unseen, 'baseline'), outside
 
 
 def _over(score, floor):
@@ -89,8 +95,8 @@ def _clean_inputs(seed, effs, duration):
     case = truth_cases.make_case(seed, effs, sensor_faults=None, duration=duration,
                                  measured_current=None, input_noise=False)
     u_case = case.unseen()
-    res, score, _ = _unseen_scores(_record(case.columns, f'truth-{seed}-ci'),
-                                   _record(u_case.columns, f'truth-{seed}-ci-unseen'))
+    res, score, _, _ = _unseen_scores(_record(case.columns, f'truth-{seed}-ci'),
+                                      _record(u_case.columns, f'truth-{seed}-ci-unseen'))
     return (_over(score, truth_cases.transfer_floor(case, u_case)),) + _causes(res)
 
 
@@ -135,7 +141,7 @@ def run_case(job):
         # it is a real current lag.
         driver = case.driver_contribution if case.sensor['spec'].current == 'absent' else 0.0
     try:
-        res, score, b_score = _unseen_scores(rec, unseen)
+        res, score, b_score, outside = _unseen_scores(rec, unseen)
         ci_ratio, ci_causes, ci_sensor = (
             _clean_inputs(seed, effs, duration) if clean_inputs and family == 'out-of-model'
             else (np.nan, None, None))
@@ -148,7 +154,7 @@ def run_case(job):
             'causes': physical, 'sensor': sensor,
             'verdict': res.verdict, 'contrib': contrib, 'floor': floor,
             'floor_est': est, 'unseen_ratio': _over(score, u_floor),
-            'unseen_baseline_ratio': _over(b_score, u_floor),
+            'unseen_baseline_ratio': _over(b_score, u_floor), 'unseen_outside': outside,
             'unseen_ratio_own_floor': _over(score, own_floor),
             'unseen_ratio_clean_inputs': ci_ratio, 'causes_clean_inputs': ci_causes,
             'sensor_clean_inputs': ci_sensor, 'seed': seed,
@@ -262,6 +268,12 @@ def summarise(family, results, strict=False):
                        ('unseen_ratio_clean_inputs', '  the same cases with noise-free '
                         'displacement, velocity and current sensors')):
         _ratio_line(label, [r.get(key, np.nan) for r in res])
+    if any('unseen_outside' in r for r in res):
+        for flag, where in ((True, 'outside the fitted range (predict warns)'),
+                            (False, 'inside it')):
+            sub = [r.get('unseen_ratio', np.nan) for r in res
+                   if r.get('unseen_outside') is flag]
+            _ratio_line(f'  unseen records {where}: {len(sub)}', sub)
     fe = np.array([r['floor_est'] / r['floor'] for r in res
                    if np.isfinite(r['floor_est']) and r['floor'] > 0])
     nf = sum(not np.isfinite(r['floor_est']) for r in res)

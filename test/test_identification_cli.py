@@ -54,6 +54,20 @@ def test_diagnose_predict_round_trip(tmp_path, capsys):
                                atol=1e-6)
     resid = got[:, 1] - rec.force
     assert np.std(resid) < 1.2 * truth['noise_rms']
+    # The model knows the range it was fitted on: the same record is inside it, the same
+    # damper driven twice as far and fast is not, and predict says so.
+    assert model['fitted_range']['abs_velocity_p999'] == pytest.approx(
+        np.percentile(np.abs(rec.velocity), 99.9), rel=1e-3)
+    assert 'outside the range' not in capsys.readouterr().err
+    fast = tmp_path / 'fast.csv'
+    np.savetxt(fast, np.column_stack([rec.time, 2 * rec.displacement, 2 * rec.velocity,
+                                      rec.i_in]), delimiter=',',
+               header='time,displacement,velocity,current_command', comments='')
+    assert cli.main(['predict', '--model', str(out / 'model.json'), str(fast), '--out',
+                     str(tmp_path / 'fast_pred.csv')]) == 0
+    err = capsys.readouterr().err
+    assert 'outside the range the model was fitted on' in err and 'faster than' in err
+    assert 'stroke beyond' in err and 'input above' not in err
     # A record without a force column can still be predicted.
     nof = tmp_path / 'noforce.csv'
     np.savetxt(nof, np.column_stack([rec.time, rec.displacement, rec.i_in]), delimiter=',',
@@ -121,3 +135,29 @@ def test_fitted_model_plugs_into_simulator_and_nodes(tmp_path):
                           '--duration', '2', '--out', str(sim_out)]) == 0
     metrics = json.loads((sim_out / 'metrics.json').read_text())
     assert metrics['skyhook_onoff']['body_acc_rms'] > 0.0
+
+
+def test_fitted_range_flags_only_what_leaves_it():
+    rec, _ = synthetic.make_record(('current_lag',), seed=4, duration=6.0)
+    rng = model_io.fitted_range([rec])
+    shares, msg = model_io.outside_range(rng, rec)
+    assert msg is None and shares['velocity'] < 0.001 and shares['input'] == 0.0
+    from dataclasses import replace
+    hot = replace(rec, i_in=1.5 * rec.i_in)
+    shares, msg = model_io.outside_range(rng, hot)
+    assert shares['input'] > model_io.RANGE_SHARE and 'input above' in msg
+    assert shares['velocity'] < 0.001 and 'faster' not in msg
+    # The stroke counts only where it enters the force (a gas spring in the model).
+    far = replace(rec, displacement=3.0 * rec.displacement)
+    shares, msg = model_io.outside_range(rng, far)
+    assert shares['displacement'] > model_io.RANGE_SHARE and 'stroke beyond' in msg
+    assert model_io.outside_range(rng, far, stroke=False)[1] is None
+    # A malformed block in model.json is refused with its key named.
+    model = {'damper': {'law': 'extended'}, 'current_dynamics': {
+        'dead_time': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0}}
+    model['damper'].update(model_io.ExtendedDamperParams().to_dict())
+    model['fitted_range'] = {**rng, 'abs_velocity_p999': float('nan')}
+    with pytest.raises(ValueError, match='fitted_range'):
+        model_io.check_model(model)
+    model['fitted_range'] = rng
+    assert model_io.check_model(model) is model

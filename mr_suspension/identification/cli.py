@@ -324,7 +324,12 @@ def cmd_predict(args):
             print(f'warning: model fitted with {fitted_with} input, record {r.name} gives '
                   f'{r.input_kind}; the prediction uses it as the same current',
                   file=sys.stderr)
-        stamps, f = dataio.at_stamps(r, model_io.predict(model, r))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter('always')
+            f = model_io.predict(model, r)
+        for w in caught:
+            print(f'warning: {w.message}', file=sys.stderr)
+        stamps, f = dataio.at_stamps(r, f)
         path = out if len(records) == 1 else out.with_name(f'{out.stem}_{k}{out.suffix}')
         _write_csv(path, stamps, f)
         print(f'wrote {path} ({stamps.size} rows at the input time stamps)')

@@ -19,12 +19,13 @@ import copy
 from dataclasses import dataclass, replace
 import functools
 import os
+import warnings
 
 from numba import njit
 import numpy as np
 
 from mr_suspension.identification import data as dataio
-from mr_suspension.identification import engine, noise, sensors
+from mr_suspension.identification import engine, model_io, noise, sensors
 
 G_MIN = 0.03
 T_MIN = 2.0
@@ -1716,9 +1717,18 @@ class Diagnosis:
         return self.result_
 
     def predict(self, record, model='extended'):
-        """Force [N] of the extended (or ``'baseline'``) model on a record, as measured."""
+        """Force [N] of the extended (or ``'baseline'``) model on a record, as measured.
+
+        Warns (``UserWarning``) when the record leaves the input range of the fitted records
+        (``model_io.outside_range``): the prediction extrapolates there.
+        """
         res = self._check()
         fit = res.final if model == 'extended' else res.baseline
+        p = fit.params()
+        msg = model_io.outside_range(model_io.fitted_range(res.dataset.records), record,
+                                     stroke=bool(p.k_gas1 or p.k_gas2))[1]
+        if msg:
+            warnings.warn(msg)
         record = denoise_current(record, res.driver)
         return engine.simulate(record, fit.params(), fit.dynamics(), **fit.channel)
 

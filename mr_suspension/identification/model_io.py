@@ -6,7 +6,8 @@ Layout::
      "damper": {"law": "extended", ...ExtendedDamperParams fields (SI)...},
      "current_dynamics": {"dead_time": s, "tau_rise": s, "tau_fall": s},
      "input": {"signal": "current_command" | "voltage_command" | "current", "map": "..."},
-     "effects": [...], "fitted_on": [...]}
+     "effects": [...], "fitted_on": [...],
+     "fitted_range": {"abs_velocity_p999": m/s, "displacement": [m, m], "abs_input_max": A}}
 
 The current dynamics map onto ``core.driver.DriverParams`` (``tau_rise``, ``tau_fall``,
 ``dead_time``; fluid time constants 0): the simulator and actuator node run the driver, then
@@ -14,7 +15,11 @@ The current dynamics map onto ``core.driver.DriverParams`` (``tau_rise``, ``tau_
 """
 
 import json
+import math
 from pathlib import Path
+import warnings
+
+import numpy as np
 
 from mr_suspension.core.driver import fitted_dynamics
 from mr_suspension.core.extended import ExtendedDamperParams
@@ -37,6 +42,74 @@ def model_dict(params, dyn, effects, input_kind, fitted_on=(), extra=None):
     if extra:
         d.update(extra)
     return d
+
+
+RANGE_SLACK = 1.1  # a sample beyond this factor of the fitted range is outside it
+RANGE_SHARE = 0.01  # share of samples outside the fitted range that earns a warning
+
+
+def fitted_range(records):
+    """Input range of the records a model was fitted on (usable samples only).
+
+    99.9th percentile of ``|v|`` (a noise spike does not widen it), the stroke's extent and
+    the largest ``|i|`` of the input. A sigmoid's tail, a loop standing in for a knee or a
+    stiffness term are not identifiable outside it: on the benchmark, unseen records whose
+    stroke rate reaches 1.5x the training's were predicted at a 95th percentile of 2.5-3.1
+    noise floors, the others at 2.1 (docs/diagnose.md, Limits).
+    """
+    def cat(name):
+        return np.concatenate([np.asarray(getattr(r, name), dtype=float)[np.asarray(r.mask)]
+                               for r in records])
+
+    v, x, i = cat('velocity'), cat('displacement'), cat('i_in')
+    if not v.size:
+        raise ValueError('fitted_range: no usable samples')
+    return {'abs_velocity_p999': float(np.percentile(np.abs(v), 99.9)),
+            'displacement': [float(np.min(x)), float(np.max(x))],
+            'abs_input_max': float(np.max(np.abs(i)))}
+
+
+def outside_range(rng, record, stroke=True):
+    """Shares of a record's usable samples outside ``rng`` (``fitted_range``) and a message.
+
+    A sample is outside when its ``|v|`` exceeds ``RANGE_SLACK`` times the fitted 99.9th
+    percentile, its stroke lies beyond ``RANGE_SLACK`` times the fitted extent about its
+    centre, or its ``|i|`` exceeds ``RANGE_SLACK`` times the fitted maximum. Returns
+    ``(shares, message)``; the message is None unless a share reaches ``RANGE_SHARE``.
+    ``stroke`` False: the stroke is not judged (it enters the force through a gas spring
+    only; another offset or amplitude is no extrapolation for the rate-driven terms).
+    """
+    m = np.asarray(record.mask)
+    v = np.abs(np.asarray(record.velocity, dtype=float)[m])
+    x = np.asarray(record.displacement, dtype=float)[m]
+    i = np.abs(np.asarray(record.i_in, dtype=float)[m])
+    lo, hi = rng['displacement']
+    centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    n = max(v.size, 1)
+    shares = {
+        'velocity': float(np.count_nonzero(v > RANGE_SLACK * rng['abs_velocity_p999']) / n),
+        'displacement': float(np.count_nonzero(np.abs(x - centre) > RANGE_SLACK * half) / n),
+        'input': float(np.count_nonzero(i > RANGE_SLACK * rng['abs_input_max']) / n)}
+    what = {'velocity': f"faster than {rng['abs_velocity_p999']:.3g} m/s",
+            'displacement': f'a stroke beyond {lo:.3g}..{hi:.3g} m',
+            'input': f"an input above {rng['abs_input_max']:.3g} A"}
+    out = [f'{100 * sh:.1f} % {what[k]}' for k, sh in shares.items()
+           if sh >= RANGE_SHARE and (stroke or k != 'displacement')]
+    if not out:
+        return shares, None
+    return shares, (f'{record.name}: outside the range the model was fitted on ('
+                    + '; '.join(out) + '): the prediction extrapolates there')
+
+
+def _check_range_block(rng, path):
+    try:
+        vals = [rng['abs_velocity_p999'], *rng['displacement'], rng['abs_input_max']]
+        ok = len(rng['displacement']) == 2 and all(math.isfinite(float(a)) for a in vals)
+    except (TypeError, KeyError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f'{path}: fitted_range must hold finite abs_velocity_p999, '
+                         f'displacement [min, max] and abs_input_max, got {rng!r}')
 
 
 def save_model(path, model):
@@ -83,6 +156,8 @@ def check_model(model, path='model.json'):
     if not isinstance(inp, dict) or (signal is not None and signal not in INPUT_MAPS):
         raise ValueError(f'{path}: input.signal must be one of {sorted(INPUT_MAPS)}, got '
                          f'{signal!r}')
+    if 'fitted_range' in model:
+        _check_range_block(model['fitted_range'], path)
     return model
 
 
@@ -105,9 +180,17 @@ def fitted_driver(path, base=None):
 
 
 def predict(model, record):
-    """Force [N] predicted by a model dictionary on a record (same path as the fit)."""
+    """Force [N] predicted by a model dictionary on a record (same path as the fit).
+
+    Warns (``UserWarning``) when the record leaves the model's ``fitted_range``.
+    """
     check_model(model)
     params = ExtendedDamperParams.from_dict(model['damper'])
+    if 'fitted_range' in model:
+        gas = bool(params.k_gas1 or params.k_gas2)
+        msg = outside_range(model['fitted_range'], record, stroke=gas)[1]
+        if msg:
+            warnings.warn(msg)
     if model.get('driver'):
         # As in the fit: a measured coil current is cleaned by the command through the
         # fitted driver (diagnose.denoise_current).
