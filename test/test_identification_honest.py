@@ -951,8 +951,7 @@ def test_a_driver_dead_time_beyond_three_named_causes_is_named_last():
 
 class _Final:
     def __init__(self, rms):
-        self.test = np.full(5, rms ** 2 * 100.0)
-        self.n_test = np.full(5, 100.0)
+        self.heldout_mse = rms ** 2
 
 
 def test_a_cause_beyond_the_limit_is_sought_only_where_the_model_stays_above_the_floor(

@@ -324,12 +324,7 @@ def cmd_predict(args):
             print(f'warning: model fitted with {fitted_with} input, record {r.name} gives '
                   f'{r.input_kind}; the prediction uses it as the same current',
                   file=sys.stderr)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter('always')
-            f = model_io.predict(model, r)
-        for w in caught:
-            print(f'warning: {w.message}', file=sys.stderr)
-        stamps, f = dataio.at_stamps(r, f)
+        stamps, f = dataio.at_stamps(r, _warning_lines(model_io.predict, model, r))
         path = out if len(records) == 1 else out.with_name(f'{out.stem}_{k}{out.suffix}')
         _write_csv(path, stamps, f)
         print(f'wrote {path} ({stamps.size} rows at the input time stamps)')
@@ -340,12 +335,17 @@ def _load_for_predict(path, opts):
     """Load records for prediction (any force column is ignored); print input warnings."""
     from dataclasses import replace
 
+    return _warning_lines(dataio.load_records, [path], replace(opts, need_force=False))
+
+
+def _warning_lines(fn, *args):
+    """Return ``fn(*args)``, printing each warning it raises as one ``warning:`` line."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always')
-        records = dataio.load_records([path], replace(opts, need_force=False))
+        out = fn(*args)
     for w in caught:
         print(f'warning: {w.message}', file=sys.stderr)
-    return records
+    return out
 
 
 def cmd_doe(args):

@@ -19,7 +19,6 @@ import copy
 from dataclasses import dataclass, replace
 import functools
 import os
-import warnings
 
 from numba import njit
 import numpy as np
@@ -636,7 +635,8 @@ class DiagnosisResult:
     ``named``, ``ambiguous``, ``partly_explained``; ``heldout`` the NRMSE of baseline and extended
     model on the outer blocks no fit or selection touched; ``floor`` the noise floor estimated
     from the data (``noise.NoiseFloor`` or None); ``residual_map`` where the extended model's
-    outer residual lives.
+    outer residual lives; ``fitted_range`` the input range of the fitted records
+    (``model_io.fitted_range``).
     """
 
     dataset: object
@@ -662,6 +662,7 @@ class DiagnosisResult:
     cause_test: dict
     singles_base_test: np.ndarray
     input_kind: str
+    fitted_range: dict
 
     @property
     def physical_causes(self):
@@ -1419,7 +1420,7 @@ def _beyond_room(ds, final, chosen, physics, floor, tick):
     """
     if _room(chosen) or floor is None or not floor.rms > 0:
         return final, chosen, None
-    rms = float(np.sqrt(final.test.sum() / final.n_test.sum()))
+    rms = float(np.sqrt(final.heldout_mse))
     if not rms > ROOM_FACTOR * floor.rms:
         return final, chosen, None
     cands = [e for e in physics if e not in chosen and compatible(chosen, e)]
@@ -1678,7 +1679,8 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
         swaps=swaps, untestable=tuple(untestable), notes=notes, steps=tuple(steps),
         verdict=verdict, base_exact=base_exact, final_exact=final_exact, heldout=heldout,
         floor=floor, residual_map=rmap, driver=driver, findings=findings,
-        cause_test=cause_test, singles_base_test=parent0.test, input_kind=input_kind)
+        cause_test=cause_test, singles_base_test=parent0.test, input_kind=input_kind,
+        fitted_range=model_io.fitted_range(ds.records))
 
 
 class Diagnosis:
@@ -1724,13 +1726,10 @@ class Diagnosis:
         """
         res = self._check()
         fit = res.final if model == 'extended' else res.baseline
-        p = fit.params()
-        msg = model_io.outside_range(model_io.fitted_range(res.dataset.records), record,
-                                     stroke=bool(p.k_gas1 or p.k_gas2))[1]
-        if msg:
-            warnings.warn(msg)
+        params = fit.params()
+        model_io.warn_outside(res.fitted_range, record, params)
         record = denoise_current(record, res.driver)
-        return engine.simulate(record, fit.params(), fit.dynamics(), **fit.channel)
+        return engine.simulate(record, params, fit.dynamics(), **fit.channel)
 
     def score(self, record, model='extended'):
         """NRMSE (RMS error / std of the measured force) on a record never used in the fit."""

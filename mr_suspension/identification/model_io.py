@@ -101,6 +101,16 @@ def outside_range(rng, record, stroke=True):
                     + '; '.join(out) + '): the prediction extrapolates there')
 
 
+def warn_outside(rng, record, params):
+    """Warn (``UserWarning``) when ``record`` leaves ``rng`` for a model with ``params``.
+
+    The stroke is judged only when the model carries a gas spring (``outside_range``).
+    """
+    msg = outside_range(rng, record, stroke=bool(params.k_gas1 or params.k_gas2))[1]
+    if msg:
+        warnings.warn(msg)
+
+
 def _check_range_block(rng, path):
     try:
         vals = [rng['abs_velocity_p999'], *rng['displacement'], rng['abs_input_max']]
@@ -187,10 +197,7 @@ def predict(model, record):
     check_model(model)
     params = ExtendedDamperParams.from_dict(model['damper'])
     if 'fitted_range' in model:
-        gas = bool(params.k_gas1 or params.k_gas2)
-        msg = outside_range(model['fitted_range'], record, stroke=gas)[1]
-        if msg:
-            warnings.warn(msg)
+        warn_outside(model['fitted_range'], record, params)
     if model.get('driver'):
         # As in the fit: a measured coil current is cleaned by the command through the
         # fitted driver (diagnose.denoise_current).

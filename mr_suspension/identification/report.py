@@ -180,7 +180,7 @@ def build(res, records, validate=(), elapsed=None):
     ext_dyn = final.dynamics()
     kinds = sorted({r.input_kind for r in records})
     extra = {'heldout_nrmse': ext_n, 'baseline_heldout_nrmse': base_n,
-             'fitted_range': model_io.fitted_range(res.dataset.records),
+             'fitted_range': res.fitted_range,
              'sensor': {'force_channel_delay': res.delay,
                         'force_channel_cutoff_hz': res.channel_filter}}
     if res.driver:
