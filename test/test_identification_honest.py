@@ -949,6 +949,27 @@ def test_a_driver_dead_time_beyond_three_named_causes_is_named_last():
     assert est.score(_record(unseen.columns)) < 2.5 * cases.transfer_floor(case, unseen)
 
 
+def test_an_arctan_shape_judged_with_the_saturation_it_trades_with():
+    """An arctan-yield damper with a current saturation (and a thermal fade below the bar).
+
+    Benchmark case (``bench_diagnose`` seed 0, case 173; truth integrator and sensors). The
+    saturation shapes the same yield force as the sigmoid's tail: judged with the named
+    causes' parameters held, the full-rate yield shape gained 0.02 at fold t 0.3 and was
+    refused, and the tanh tail missed the unseen record (a faster programme) by 5.5 noise
+    floors. Judged with them refitted, it gains 0.12 at t 2.4 and is named.
+    """
+    case = cases.make_case(173, ('current_saturation', 'thermal_fade'), sensor_faults=None,
+                           duration=12.0, measured_current=None)
+    assert case.truth.shape == 'arctan'
+    est = diagnose.Diagnosis()
+    res = est.fit([_record(case.columns)])
+    step = [s for s in res.steps if s.get('stage') == 'yield shape again (full rate)']
+    assert step and step[0].get('added') == 'yield_shape'
+    assert {'current_saturation', 'yield_shape'} <= set(res.physical_causes)
+    unseen = case.unseen()
+    assert est.score(_record(unseen.columns)) < 4.0 * cases.transfer_floor(case, unseen)
+
+
 class _Final:
     def __init__(self, rms):
         self.heldout_mse = rms ** 2
