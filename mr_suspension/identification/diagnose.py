@@ -1325,7 +1325,7 @@ def _fine_stage(ds, final, chosen, cands, tick, label, t_min=T_FINE, out=None, f
         if e not in FINE:
             # A physical cause screened again (``_rescreen``) or the force channel's delay
             # judged again (``_fine_timing``): its parameters on their whole grids, the
-            # parent's held.
+            # parent's held (refitted with it when ``free``: ``_shape_again``).
             return lambda: engine.fit(ds, tuple(chosen) + (e,), start_eta=final.eta,
                                       start_theta=final.theta, new=(e,), sweeps=1,
                                       fixed=() if free else held)
