@@ -55,8 +55,9 @@ class DataError(ValueError):
 class Record:
     """One rig record in SI units on a uniform time base (see the module docstring).
 
-    ``mask`` marks usable samples (False: dropout, clipping, spike; those are linearly
-    filled so that model states can run through them, never scored). ``findings`` are the
+    ``mask`` marks usable samples (False: dropout, clipping, spike, and the
+    ``velocity_edge`` samples at each end whose low-passed velocity is one-sided; those are
+    linearly filled so that model states can run through them, never scored). ``findings`` are the
     sensor findings (``sensors``). ``stamps`` are the input rows' own times relative to the
     first and ``stamp_index`` their grid samples (None when the rows were resampled).
     """
@@ -77,6 +78,7 @@ class Record:
     findings: tuple = ()
     stamps: np.ndarray = None
     stamp_index: np.ndarray = None
+    velocity_edge: int = 0
 
     def __post_init__(self):
         """Fill the defaults: ``mask`` all True, ``stamps`` = ``time`` (one row per sample)."""
@@ -156,6 +158,28 @@ def _grid_mask(base, row_mask, gap_mask, n):
     mask = gap_mask.copy()
     mask[base.index] = row_mask
     return mask
+
+
+def velocity_edge(cutoff, dt, n):
+    """Count the one-sided samples at each end of a velocity low-passed at ``cutoff`` [Hz].
+
+    Half a period of the cut-off, ``ceil(0.5 / (cutoff dt))``; 0 without a low-pass or for a
+    record shorter than 40 times that.
+    """
+    if cutoff is None or not cutoff < 0.45 / dt:
+        return 0
+    k = int(math.ceil(0.5 / (cutoff * dt)))
+    return k if n >= 40 * k else 0
+
+
+def _adaptive_note(share):
+    """Describe ``sensors.adaptive_lowpass`` for the velocity source (None: not applied)."""
+    from mr_suspension.identification import sensors
+
+    if share is None:
+        return ''
+    return (f'; lower per sample where the motion is slow (ICI rule, down to '
+            f'{sensors.BAND_MIN:g} Hz): {100 * share:.0f} % of the samples')
 
 
 def velocity_band(x, dt, opts):
@@ -357,6 +381,7 @@ def build_record(name, cols, opts=None, meta=None):
             warnings.warn(f'{name}: peak force only {np.max(np.abs(f[mask])):.3g} N; if the file '
                           'is in kN pass --units force=kN (parameters would be 1000x too small)')
     vsrc = 'measured'
+    top = None  # the cut-off of a low-pass the velocity went through
     cut, order = velocity_band(x, dt, opts)
     band = 'no low-pass' if cut is None else f'zero-phase Butterworth order {order} {cut:.3g} Hz'
     derived = f'derived ({band})'
@@ -368,6 +393,10 @@ def build_record(name, cols, opts=None, meta=None):
         if fv is not None:
             findings.append(fv)
             warnings.warn(f'{name}: {fv["finding"]}: {fv["detail"]}')
+            if not opts.velocity_cutoff and cut is not None:
+                v, share = sensors.adaptive_derivative(x, dt, cut)
+                derived = derived[:-1] + _adaptive_note(share) + ')'
+            top = cut
             vsrc = derived + '; measured velocity replaced'
         elif not opts.velocity_cutoff:
             # White sensor noise above the motion band only scatters the yield branch.
@@ -377,18 +406,36 @@ def build_record(name, cols, opts=None, meta=None):
                 # (clean data are left exactly as they are) The displacement's derivative is
                 # the better rate below the crossover f_c; what noise is left above the
                 # motion band is then cut.
+                v_raw = v
                 v, fc = sensors.fuse_velocity(x, v, dt)
                 parts = [] if fc is None else \
                     [f'fused with d(displacement)/dt below {fc:.3g} Hz (Wiener weights)']
                 vcut, removed = sensors.motion_band(v, dt)
                 if vcut is not None and removed > 1e-3 * vrms:
-                    v = sensors.smooth_velocity(v, dt, vcut)
+                    v, share = sensors.adaptive_velocity(x, v_raw, v, dt, vcut, fc)
+                    top = vcut
                     parts.append(f'zero-phase Butterworth order 4 {vcut:.3g} Hz: noise above '
-                                 f'the motion band removed, {removed:.3g} m/s RMS')
+                                 f'the motion band removed, {removed:.3g} m/s RMS'
+                                 + _adaptive_note(share))
                 vsrc = f'measured ({"; ".join(parts)})' if parts else vsrc
-    else:
+    elif opts.velocity_cutoff or cut is None:
         v = derive_velocity(x, dt, cut, order)
         vsrc = derived
+        top = cut
+    else:
+        v, share = sensors.adaptive_derivative(x, dt, cut)
+        vsrc = f'derived (zero-phase Butterworth order 4 {cut:.3g} Hz{_adaptive_note(share)})'
+        top = cut
+    edge = velocity_edge(top, dt, mask.size)
+    if edge:
+        # Within half a period of the cut-off from either end the zero-phase filter has
+        # one side only: that velocity is an extrapolation (errors of several mm/s, where a
+        # yield force turns within a few), so those samples are neither fitted nor scored.
+        mask = mask.copy()
+        mask[:edge] = False
+        mask[-edge:] = False
+        vsrc += f'; its first and last {edge} samples (one-sided filter) excluded'
+
     vrms = float(np.sqrt(np.mean(v[mask] ** 2)))
     if vrms < NO_MOTION_V:
         raise DataError(f'{name}: no motion: velocity RMS {1e3 * vrms:.3g} mm/s (need >= '
@@ -419,7 +466,8 @@ def build_record(name, cols, opts=None, meta=None):
     return Record(name=name, time=base.time, displacement=x, velocity=v, force=f, i_in=i_in,
                   input_kind=kind, dt=dt, command=command, temperature=cols.get('temperature'),
                   velocity_source=vsrc, meta=dict(meta or {}), mask=mask,
-                  findings=tuple(findings), stamps=base.stamps, stamp_index=base.index)
+                  findings=tuple(findings), stamps=base.stamps, stamp_index=base.index,
+                  velocity_edge=edge)
 
 
 def _apply_units(cols, units, defaults=None):
