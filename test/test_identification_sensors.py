@@ -133,10 +133,8 @@ def test_velocity_skewed_by_half_a_millisecond_is_replaced():
     assert rec.velocity_source.startswith('derived') and _only_edges_masked(rec)
     cut = sensors.motion_cutoff(cols['displacement'], 1e-3)  # the motion band's (two sines)
     assert 3.1 * sensors.BAND_FACTOR <= cut < 100.0
-    inner = slice(int(3.0 / (cut * 1e-3)), -int(3.0 / (cut * 1e-3)))  # past the filters' ends
-    np.testing.assert_allclose(rec.velocity[inner],
-                               dataio.derive_velocity(cols['displacement'], 1e-3, cut, 4)[inner],
-                               rtol=0, atol=1e-4 * np.max(np.abs(rec.velocity)))
+    np.testing.assert_allclose(rec.velocity,
+                               dataio.derive_velocity(cols['displacement'], 1e-3, cut, 4))
 
 
 def test_velocity_derived_from_a_noisy_displacement_is_replaced():
@@ -397,61 +395,6 @@ def test_heavy_clipping_at_both_rails_is_found():
     np.testing.assert_array_equal(rec.mask, valid)
 
 
-def test_velocity_noise_psd_integrates_to_the_variance_of_the_noise_it_models():
-    """Closed form against sampled noise: the central difference and the fusion."""
-    rng = np.random.default_rng(5)
-    dt, n, sx_rms, sv_rms = 1e-3, 400000, 5e-6, 2e-3
-    nx = sx_rms * rng.standard_normal(n)
-    nv = sv_rms * rng.standard_normal(n)
-    f = np.linspace(0.0, 0.5 / dt, 20001)
-    sx, sv = 2 * sx_rms ** 2 * dt, 2 * sv_rms ** 2 * dt  # one-sided white levels
-    d = np.gradient(nx, dt)[1:-1]
-    assert np.trapezoid(sensors.velocity_noise_psd(f, dt, sx), f) == pytest.approx(
-        np.var(d), rel=0.02)
-    fc = 30.0
-    from scipy import signal
-    fused = nv + signal.sosfiltfilt(signal.butter(1, fc * 2 * dt, output='sos'),
-                                    np.gradient(nx, dt) - nv)
-    assert np.trapezoid(sensors.velocity_noise_psd(f, dt, sx, sv, fc), f) == pytest.approx(
-        np.var(fused[1000:-1000]), rel=0.03)
-
-
-def _rest_and_reversals(t):
-    """Return displacement [m] and velocity [m/s]: fast reversals, then a slow creep.
-
-    A smoothed square wave in velocity (1.5 Hz) for 6 s, then a 0.2 Hz creep of 4 mm/s;
-    the displacement is its trapezoid integral.
-    """
-    from scipy.integrate import cumulative_trapezoid
-    v = np.where(t < 6.0, 0.15 * np.tanh(6.0 * np.sin(2 * np.pi * 1.5 * t)),
-                 0.004 * np.sin(2 * np.pi * 0.2 * (t - 6.0)))
-    return cumulative_trapezoid(v, t, initial=0.0), v
-
-
-def test_adaptive_derivative_cuts_noise_where_slow_and_keeps_fast_reversals():
-    """The ICI rule against the fixed motion-band low-pass on the same noisy displacement."""
-    t = np.arange(12000) * 1e-3
-    x, v = _rest_and_reversals(t)
-    xm = x + 8e-6 * np.random.default_rng(2).standard_normal(t.size)
-    cut = sensors.motion_cutoff(xm, 1e-3)
-    fixed = dataio.derive_velocity(xm, 1e-3, cut, 4)
-    adaptive, share = sensors.adaptive_derivative(xm, 1e-3, cut)
-    inner = slice(200, -200)
-    slow = np.zeros(t.size, dtype=bool)
-    slow[inner] = np.abs(v[inner]) < 0.01
-    fast = np.zeros(t.size, dtype=bool)
-    fast[inner] = (t[inner] < 6.0) & (np.abs(v[inner]) >= 0.01)
-
-    def rms(e, m):
-        return float(np.sqrt(np.mean(e[m] ** 2)))
-
-    assert 0.2 < share <= 1.0
-    # at rest and through the zero crossings the noise falls by more than half ...
-    assert rms(adaptive - v, slow) < 0.5 * rms(fixed - v, slow)
-    # ... while the fast strokes lose no more than 15 % of the fixed filter's accuracy
-    assert rms(adaptive - v, fast) < 1.15 * rms(fixed - v, fast)
-
-
 def test_a_derived_velocity_masks_its_one_sided_ends():
     t = np.arange(8000) * 1e-3
     x, v = _motion(t)
@@ -464,3 +407,29 @@ def test_a_derived_velocity_masks_its_one_sided_ends():
     assert _only_edges_masked(rec) and 'one-sided' in rec.velocity_source
     assert dataio.velocity_edge(None, 1e-3, 8000) == 0
     assert dataio.velocity_edge(20.0, 1e-3, 500) == 0  # too short to spare them
+
+
+def test_the_masked_velocity_ends_are_where_a_derived_velocity_errs():
+    """Independent truth records without a velocity channel (truth integrator and sensors).
+
+    The zero-phase derivative's first and last samples see one side only: pooled over six
+    records their error is several times that of the rest (4-17 mm/s at the end samples
+    against 0.2-0.6 mm/s RMS inside), and those are the samples the mask drops.
+    """
+    from mr_suspension.truth import cases
+
+    edge, inner = [], []
+    for seed in range(6):
+        case = cases.make_case(seed, (), sensor_faults=('no_velocity',), duration=12.0,
+                               measured_current=False)
+        rec = _build(case.columns)
+        rows = case.sensor['info'].get('rows')
+        truth = case.clean['velocity'] if rows is None else case.clean['velocity'][rows]
+        e = rec.velocity - truth
+        k = rec.velocity_edge
+        assert k > 0 and _only_edges_masked(rec)
+        edge.append(np.r_[e[:k], e[rec.n - k:]])
+        inner.append(e[k:rec.n - k])
+    rms_edge = np.sqrt(np.mean(np.concatenate(edge) ** 2))
+    rms_inner = np.sqrt(np.mean(np.concatenate(inner) ** 2))
+    assert rms_edge > 3.0 * rms_inner

@@ -172,16 +172,6 @@ def velocity_edge(cutoff, dt, n):
     return k if n >= 40 * k else 0
 
 
-def _adaptive_note(share):
-    """Describe ``sensors.adaptive_lowpass`` for the velocity source (None: not applied)."""
-    from mr_suspension.identification import sensors
-
-    if share is None:
-        return ''
-    return (f'; lower per sample where the motion is slow (ICI rule, down to '
-            f'{sensors.BAND_MIN:g} Hz): {100 * share:.0f} % of the samples')
-
-
 def velocity_band(x, dt, opts):
     """Cut-off [Hz] and filter order for velocities: the user's, else the motion band's."""
     from mr_suspension.identification import sensors
@@ -393,9 +383,6 @@ def build_record(name, cols, opts=None, meta=None):
         if fv is not None:
             findings.append(fv)
             warnings.warn(f'{name}: {fv["finding"]}: {fv["detail"]}')
-            if not opts.velocity_cutoff and cut is not None:
-                v, share = sensors.adaptive_derivative(x, dt, cut)
-                derived = derived[:-1] + _adaptive_note(share) + ')'
             top = cut
             vsrc = derived + '; measured velocity replaced'
         elif not opts.velocity_cutoff:
@@ -406,25 +393,19 @@ def build_record(name, cols, opts=None, meta=None):
                 # (clean data are left exactly as they are) The displacement's derivative is
                 # the better rate below the crossover f_c; what noise is left above the
                 # motion band is then cut.
-                v_raw = v
                 v, fc = sensors.fuse_velocity(x, v, dt)
                 parts = [] if fc is None else \
                     [f'fused with d(displacement)/dt below {fc:.3g} Hz (Wiener weights)']
                 vcut, removed = sensors.motion_band(v, dt)
                 if vcut is not None and removed > 1e-3 * vrms:
-                    v, share = sensors.adaptive_velocity(x, v_raw, v, dt, vcut, fc)
+                    v = sensors.smooth_velocity(v, dt, vcut)
                     top = vcut
                     parts.append(f'zero-phase Butterworth order 4 {vcut:.3g} Hz: noise above '
-                                 f'the motion band removed, {removed:.3g} m/s RMS'
-                                 + _adaptive_note(share))
+                                 f'the motion band removed, {removed:.3g} m/s RMS')
                 vsrc = f'measured ({"; ".join(parts)})' if parts else vsrc
-    elif opts.velocity_cutoff or cut is None:
+    else:
         v = derive_velocity(x, dt, cut, order)
         vsrc = derived
-        top = cut
-    else:
-        v, share = sensors.adaptive_derivative(x, dt, cut)
-        vsrc = f'derived (zero-phase Butterworth order 4 {cut:.3g} Hz{_adaptive_note(share)})'
         top = cut
     edge = velocity_edge(top, dt, mask.size)
     if edge:
