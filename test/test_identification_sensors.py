@@ -40,7 +40,7 @@ def _names(rec):
 
 
 def _only_edges_masked(rec):
-    """Every sample usable but the low-passed velocity's one-sided ends (and those not)."""
+    """Every sample usable except the low-passed velocity's one-sided ends, all masked."""
     e = rec.velocity_edge
     inner = rec.mask[e:rec.n - e]
     return bool(inner.all() and not rec.mask[:e].any() and not rec.mask[rec.n - e:].any())
@@ -413,7 +413,7 @@ def test_the_masked_velocity_ends_are_where_a_derived_velocity_errs():
     """Independent truth records without a velocity channel (truth integrator and sensors).
 
     The zero-phase derivative's first and last samples see one side only: pooled over six
-    records their error is several times that of the rest (4-17 mm/s at the end samples
+    records their error is several times that of the rest (0.9-17 mm/s at the end samples
     against 0.2-0.6 mm/s RMS inside), and those are the samples the mask drops.
     """
     from mr_suspension.truth import cases

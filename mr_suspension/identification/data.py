@@ -166,7 +166,9 @@ def velocity_edge(cutoff, dt, n):
     Half a period of the cut-off, ``ceil(0.5 / (cutoff dt))``; 0 without a low-pass or for a
     record shorter than 40 times that.
     """
-    if cutoff is None or not cutoff < 0.45 / dt:
+    from mr_suspension.identification import sensors
+
+    if cutoff is None or not cutoff < sensors.LOWPASS_MAX / dt:
         return 0
     k = int(math.ceil(0.5 / (cutoff * dt)))
     return k if n >= 40 * k else 0

@@ -414,10 +414,13 @@ def spikes(name, x, limit=None):
                          threshold=thr, fraction=(nw + no) / x.size)
 
 
+LOWPASS_MAX = 0.45   # a cut-off at or above this fraction of the sampling rate: no low-pass
+
+
 def lowpass(y, dt, cutoff, order=2):
     """Zero-phase Butterworth low-pass (``order``, ``cutoff`` Hz; None or >= 0.45 fs: none)."""
     fs = 1.0 / dt
-    if cutoff is None or cutoff >= 0.45 * fs or y.size <= 30:
+    if cutoff is None or cutoff >= LOWPASS_MAX * fs or y.size <= 30:
         return y
     sos = signal.butter(order, cutoff / (0.5 * fs), output='sos')
     return signal.sosfiltfilt(sos, y, padlen=_padlen(y.size, fs, cutoff, order))
