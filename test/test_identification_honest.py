@@ -953,21 +953,23 @@ def test_an_arctan_shape_judged_with_the_saturation_it_trades_with():
     """An arctan-yield damper with a current saturation (and a thermal fade below the bar).
 
     Benchmark case (``bench_diagnose`` seed 0, case 173; truth integrator and sensors). The
-    saturation shapes the same yield force as the sigmoid's tail: judged with the named
-    causes' parameters held, the full-rate yield shape gained 0.02 at fold t 0.3 and was
-    refused, and the tanh tail missed the unseen record (a faster programme) by 5.5 noise
-    floors. Judged with them refitted, it gains 0.12 at t 2.4 and is named.
+    saturation shapes the same yield force as the sigmoid's tail. Stop 35: judged with the
+    named causes' parameters held, the full-rate yield shape was refused and the tanh tail
+    missed the unseen record (a faster programme) by 5.5 noise floors; judged with them
+    refitted it was named there (3.07 floors). Stop 37: the saturated field drives the
+    viscous term too and the curve's exponent is searched; the shape is then separable at
+    the search rate already (named in the selection, gain 0.12 at t 2.7) and the unseen
+    record comes to 2.66 floors.
     """
     case = cases.make_case(173, ('current_saturation', 'thermal_fade'), sensor_faults=None,
                            duration=12.0, measured_current=None)
     assert case.truth.shape == 'arctan'
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
-    step = [s for s in res.steps if s.get('stage') == 'yield shape again (full rate)']
-    assert step and step[0].get('added') == 'yield_shape'
     assert {'current_saturation', 'yield_shape'} <= set(res.physical_causes)
+    assert res.final.params().yield_n > 0 and res.final.params().i_sat > 0
     unseen = case.unseen()
-    assert est.score(_record(unseen.columns)) < 4.0 * cases.transfer_floor(case, unseen)
+    assert est.score(_record(unseen.columns)) < 3.0 * cases.transfer_floor(case, unseen)
 
 
 class _Final:
@@ -999,3 +1001,30 @@ def test_a_cause_beyond_the_limit_is_sought_only_where_the_model_stays_above_the
     assert t_min == diagnose.T_FINE and not set(cands) & set(chosen)
     assert 'current_delay' in cands and 'series_stiffness' in cands
     assert all(diagnose.compatible(list(chosen), e) for e in cands)
+
+
+def test_an_exponential_magnetisation_curve_is_fitted_by_the_curve_exponent():
+    """The truth's field saturates as ``i_s (1 - exp(-i / i_s))`` (truth rig, clean sensors).
+
+    Not the fit's tanh nor its algebraic family: the curve's exponent (``sat_n``) is searched
+    jointly with ``i_s`` and brings the fitted curve nearer. Three strong saturations
+    (``i_s`` = 0.25-0.34 A of 1 A): held-out MSE 4-12 % lower than the tanh curve's, and every
+    unseen record better predicted (measured 1.44 -> 1.30, 3.01 -> 2.98, 1.97 -> 1.83 floors).
+    """
+    for seed in (11, 12, 13):
+        case = cases.make_case(seed, ('current_saturation',), sensor_faults=(), duration=12.0,
+                               shape='bingham_tanh', strength=1.0, measured_current=False)
+        ds = engine.Dataset([_record(case.columns)])
+        unseen = case.unseen()
+        rec = _record(unseen.columns)
+        m = np.asarray(rec.mask, dtype=bool)
+        fits, scores = [], []
+        for fixed in (('sat_n',), ()):
+            f = engine.fit(ds, ('current_saturation',), fixed=fixed)
+            pred = engine.simulate(rec, f.params(), f.dynamics(), **f.channel)
+            fits.append(f)
+            scores.append(np.sqrt(np.mean((rec.force[m] - pred[m]) ** 2)))
+        tanh, curve = fits
+        assert tanh.params().sat_n == 0.0 and curve.params().sat_n > 0.0, seed
+        assert curve.heldout_mse < 0.97 * tanh.heldout_mse, seed
+        assert scores[1] < scores[0], seed

@@ -4,7 +4,9 @@ Force (stroke ``x``, + = extension; stroke rate ``v``; field current ``i``)::
 
     F   = F0 + kg1 x + kg2 x^2 + F_d(u)                   (gas spring k2 in parallel, seed 000)
     F_d = M_th [c(i) u A(u) + Fy(i) y (1 + rho y)]        (damping element, seed 003 eq. 5.2)
-    c(i) = c0 + c1 i,  Fy(i) = fy0 + fy1 g(i),  g(i) = i_s tanh(i / i_s)   (saturation)
+    c(i) = c0 + c1 g(i),  Fy(i) = fy0 + fy1 g(i)          (the field drives both)
+    g(i) = i, or i_s tanh(w), or i_s w / (1 + |w|^m)^(1/m), w = i / i_s   (saturation, m = sat_n;
+           m = 1 is the Frohlich-Kennelly magnetisation curve)
     M_th = 1 - kappa E,  A(u) = 1 + rho tanh(u / v_y)     (thermal fade, direction asymmetry)
     y(u) = S(u) = tanh(u / v_y), or w / (1 + |w|^n)^(1/n), w = u / v_y (yield shape, n = yield_n)
     y    = (1 - w_h) S(u) + w_h z                         (hysteresis: share w_h of the yield
@@ -60,8 +62,8 @@ from mr_suspension.core.validation import as_number, build, check_declared, para
 EXT_NSTATE = 10
 S_Z, S_FD, S_E, S_U, S_Y, S_M, S_G, S_DF, S_FD2, S_DTP = range(10)
 (P_F0, P_C0, P_C1, P_FY0, P_FY1, P_VY, P_ISAT, P_XH, P_K1, P_KG1, P_KG2, P_KAPPA, P_TAUTH,
- P_RHO, P_YN, P_HW, P_HN, P_HR) = range(18)
-P_TAB = 18  # Bouc-Wen table (bw_table) appended to the parameter array: [h_xi, zeta.., g..]
+ P_RHO, P_YN, P_HW, P_HN, P_HR, P_SN) = range(19)
+P_TAB = 19  # Bouc-Wen table (bw_table) appended to the parameter array: [h_xi, zeta.., g..]
 BW_NT = 512
 RHO_MAX = 0.5
 
@@ -71,7 +73,9 @@ class ExtendedDamperParams:
     """Parameters of the extended law (SI); the field order is the jitted array order.
 
     ``f0`` [N], ``c0`` [N s/m], ``c1`` [N s/(m A)], ``fy0`` [N], ``fy1`` [N/A], ``v_y`` [m/s]
-    smooth-Bingham baseline; ``i_sat`` [A] yield saturation (0 = off); ``x_h`` [m] Dahl
+    smooth-Bingham baseline; ``i_sat`` [A] field saturation (0 = off), ``sat_n`` [-] the
+    exponent of its curve ``w / (1 + |w|^m)^(1/m)`` instead of ``tanh(w)`` (0 = tanh; 1 =
+    Frohlich-Kennelly); ``x_h`` [m] Dahl
     pre-yield length (0 = off, smooth tanh); ``k_series`` [N/m] series stiffness (0 = rigid);
     ``k_gas1`` [N/m], ``k_gas2`` [N/m^2] gas spring; ``kappa`` [1/J] fade per stored heat
     (0 = off), ``tau_thermal`` [s] cooling time constant; ``rho`` [-] rebound/compression
@@ -91,7 +95,7 @@ class ExtendedDamperParams:
     fy0: float = param(100.0, -1.0e7, 1.0e7, 'N', 'yield force at 0 A')
     fy1: float = param(500.0, -1.0e7, 1.0e7, 'N/A', 'yield force per ampere')
     v_y: float = param(0.01, 1.0e-7, 100.0, 'm/s', 'yield smoothing velocity')
-    i_sat: float = param(0.0, 1.0e-4, 1.0e3, 'A', 'yield saturation current', off=0.0)
+    i_sat: float = param(0.0, 1.0e-4, 1.0e3, 'A', 'field saturation current', off=0.0)
     x_h: float = param(0.0, 1.0e-7, 1.0, 'm', 'Dahl pre-yield length', off=0.0)
     k_series: float = param(0.0, 1.0, 1.0e12, 'N/m', 'series stiffness', off=0.0)
     k_gas1: float = param(0.0, -1.0e9, 1.0e9, 'N/m', 'gas spring linear term')
@@ -106,6 +110,8 @@ class ExtendedDamperParams:
     hyst_n: float = param(1.0, 1.0, 6.0, '', 'Bouc-Wen exponent', required=False)
     hyst_r: float = param(0.0, -1.0, 0.5, '', 'Bouc-Wen unloading shape gamma/(beta+gamma)',
                           required=False)
+    sat_n: float = param(0.0, 0.3, 20.0, '', 'magnetisation curve exponent', off=0.0,
+                         required=False)
 
     law = 'extended'
 
@@ -286,8 +292,12 @@ def _element(p, s, u, i, dt):
     """Damping-element force ``F_d(u)``, ``dF_d/du``, intermediates (Y, M, g), hysteretic state."""
     vy = p[P_VY]
     isat = p[P_ISAT]
-    g = isat * fast_tanh(i / isat) if isat > 0.0 else i
-    c = p[P_C0] + p[P_C1] * i
+    g = i
+    if isat > 0.0:
+        wi = i / isat
+        sn = p[P_SN]
+        g = isat * (fast_tanh(wi) if sn <= 0.0 else wi / (1.0 + abs(wi) ** sn) ** (1.0 / sn))
+    c = p[P_C0] + p[P_C1] * g
     fy = p[P_FY0] + p[P_FY1] * g
     xh = p[P_XH]
     if p[P_YN] > 0.0:

@@ -46,9 +46,9 @@ SEED003_REPORTED = {
 def rd8041_model():
     """RD-8041 class extended law (our assumption, see module doc).
 
-    ``F = (c0 + c1 i) v + (fy0 + fy1 g(i)) tanh(v / v_y)``, ``g(i) = i_s tanh(i / i_s)``
-    with ``i_s = 0.6 A``: 1186 N at 5 cm/s and 1 A (seed 001: 2447 N peak-to-peak), 100 N
-    at 0 A, and a yield force that saturates above about 0.75 A.
+    ``F = (c0 + c1 g(i)) v + (fy0 + fy1 g(i)) tanh(v / v_y)``, ``g(i) = i_s tanh(i / i_s)``
+    with ``i_s = 0.6 A``: 1175 N at 5 cm/s and 1 A (seed 001: 2447 N peak-to-peak), 100 N
+    at 0 A, and a field that saturates above about 0.75 A.
     """
     return ExtendedDamperParams(f0=0.0, c0=1200.0, c1=500.0, fy0=40.0, fy1=1900.0, v_y=0.01,
                                 i_sat=0.6)

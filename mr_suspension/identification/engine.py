@@ -40,7 +40,7 @@ EFFECT_PARAMS = {
     'current_delay': ('dead_time',),
     'current_lag': ('tau_lag',),
     'current_lag_asymmetric': ('tau_rise', 'tau_fall'),
-    'current_saturation': ('i_sat',),
+    'current_saturation': ('i_sat', 'sat_n'),
     'hysteresis': ('x_h', 'hyst_n', 'hyst_r'),
     'series_stiffness': ('k_series',),
     'gas_spring': (),
@@ -53,6 +53,7 @@ FORCE_DEPENDENT = ('series_stiffness', 'thermal_fade')
 LINEAR_PARAMS = ('rho', 'dead_time', 'delay', 'hyst_r')
 ASYM_GRID = np.array([1.0, 4.0, 15.0, 50.0, 160.0]) * 1e-3  # rise x fall [s]
 YIELD_VY = np.geomspace(0.4, 2.5, 11)  # v_y factors (steps of 1.2) of the joint yield grid
+SAT_SCALE = (0.8, 1.0, 1.25, 1.6)  # i_s factors of the joint saturation-curve grid
 YIELD_FEV = 30  # evaluations of the joint polish of the yield shape from its best grid point
 OE_SAMPLES = 2000  # window of the output-error start of force-dependent states
 OE_NFEV = 12
@@ -215,6 +216,8 @@ class Dataset:
             return np.array([0, 1, 2, 4, 7, 12, 20, 35, 60, 100, 160]) * ms
         if name == 'i_sat':
             return self.i_max * np.array([0.15, 0.25, 0.4, 0.6, 1.0, 1.6, 2.5, 4.0, 8.0])
+        if name == 'sat_n':
+            return np.array([0.0, 1.0, 1.5, 2.2, 3.2])  # 0: tanh
         if name == 'x_h':
             return self.x_ref * np.logspace(-3, -0.3, 10)
         if name == SHARE:
@@ -245,9 +248,9 @@ class Dataset:
 def neutral_eta():
     """Nonlinear parameters with every effect off (v_y set by the search)."""
     return {'v_y': 0.01, 'dead_time': 0.0, 'tau_lag': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0,
-            'i_sat': 0.0, 'x_h': 0.0, 'k_series': 0.0, 'kappa': 0.0, 'tau_thermal': 600.0,
-            'rho': 0.0, 'delay': 0.0, 'yield_n': 0.0, 'hyst_weight': 1.0, 'hyst_n': 1.0,
-            'hyst_r': 0.0, 'f_ch': 0.0}
+            'i_sat': 0.0, 'sat_n': 0.0, 'x_h': 0.0, 'k_series': 0.0, 'kappa': 0.0,
+            'tau_thermal': 600.0, 'rho': 0.0, 'delay': 0.0, 'yield_n': 0.0, 'hyst_weight': 1.0,
+            'hyst_n': 1.0, 'hyst_r': 0.0, 'f_ch': 0.0}
 
 
 def current_dynamics(effects, eta):
@@ -268,6 +271,7 @@ def damper_params(effects, eta, theta):
         d['k_gas1'], d['k_gas2'] = theta[5], theta[6]
     if 'current_saturation' in effects:
         d['i_sat'] = eta['i_sat']
+        d['sat_n'] = eta.get('sat_n', 0.0)
     if 'hysteresis' in effects:
         neutral = neutral_eta()
         for n in LOOP_PARAMS:
@@ -383,7 +387,7 @@ def design(ds, effects, eta, theta_prev):
             # The element state ran away (a non-monotone element at this theta): no model.
             return np.full((ds.force.size, 7 if gas else 5), np.nan)
         mu = m * u  # F_d = M c u + Fy Y (core.extended): Y carries its own multiplier
-        c = [np.ones(r.n), mu, mu * i_f, y, y * g]
+        c = [np.ones(r.n), mu, mu * g, y, y * g]  # g: the field (saturated current)
         if gas:
             c += [r.displacement, r.displacement ** 2]
         x = np.column_stack(c)
@@ -958,6 +962,14 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                 for gn in grid:
                     for gr in rs:
                         ev({**base_eta, 'hyst_n': float(gn), 'hyst_r': float(gr)})
+            if name == 'sat_n' and sweep == 0 and 'current_saturation' in new:
+                # The curve's exponent and its scale trade against each other (an algebraic
+                # curve reaches the saturated field later than tanh at the same i_s): at
+                # tanh's i_s every exponent looks worse, so each is tried at scaled i_s too.
+                base_eta = dict(cur_eta())
+                for gn in grid[grid > 0]:
+                    for f in SAT_SCALE:
+                        ev({**base_eta, 'sat_n': float(gn), 'i_sat': base_eta['i_sat'] * f})
             if name == 'k_series' and sweep == 0 and 'series_stiffness' in new:
                 res = _series_grid(grid)
             else:

@@ -81,7 +81,7 @@ EFFECT_TEXT = {
     'current_delay': 'field current = command delayed by a different dead time',
     'current_lag': 'different (lumped) first-order current lag',
     'current_lag_asymmetric': 'lumped current lag with separate rise and fall time constants',
-    'current_saturation': 'yield force saturates with current, fy1 i_s tanh(i / i_s)',
+    'current_saturation': 'the field saturates with current: c1 and fy1 see i_s tanh(i / i_s)',
     'direction_asymmetry': 'damper force scaled by 1 + rho tanh(v / v_y) (rebound vs bump)',
 }
 SEPARATING = {
@@ -350,8 +350,8 @@ def columns(P, effects, eta):
         if mount:  # the damper's rate is the strut's: body-wheel rate + the mount's rate
             v = v + P.mount_q[_mount_key(eta)][sl]
         tv = np.tanh(v / eta['v_y'])
-        iy = _yield_current(i, effects, eta)
-        damp = [v, i * v, tv, iy * tv]
+        iy = _saturated(i, effects, eta)
+        damp = [v, iy * v, tv, iy * tv]
         dn = ['c0', 'c1', 'fy0', 'fy1']
         if 'direction_asymmetry' in effects:
             a = 1.0 + eta['rho'] * tv
@@ -383,8 +383,8 @@ def columns(P, effects, eta):
     return np.concatenate(blocks), names
 
 
-def _yield_current(i, effects, eta):
-    """Return the current the yield force sees: ``i_sat tanh(i / i_sat)`` or ``i``."""
+def _saturated(i, effects, eta):
+    """Return the field current damping and yield force see: ``i_sat tanh(i / i_sat)`` or ``i``."""
     return eta['i_sat'] * np.tanh(i / eta['i_sat']) if 'current_saturation' in effects else i
 
 
@@ -510,8 +510,8 @@ def mount_rates(P, fit, eta=None):
     out = []
     for k, sl in enumerate(P.slices):
         _, v, i = _motion(P, k, fit.effects, eta)
-        iy = _yield_current(i, fit.effects, eta)
-        cv = th.get('c0', 0.0) + th.get('c1', 0.0) * i
+        iy = _saturated(i, fit.effects, eta)
+        cv = th.get('c0', 0.0) + th.get('c1', 0.0) * iy
         fy = th.get('fy0', 0.0) + th.get('fy1', 0.0) * iy
         with np.errstate(all='ignore'):
             q = _mount_rate(np.ascontiguousarray(sx_all[sl]), np.ascontiguousarray(cv),
@@ -857,7 +857,7 @@ def _corner_kernel(p, zr, zrd, i_f, dt, nsub):
             x = zs - zu
             v = vs - vu
             tv = math.tanh(v / p[9])
-            fd = ((p[5] + p[6] * i) * v + (p[7] + p[8] * iy) * tv) * (1.0 + p[16] * tv)
+            fd = ((p[5] + p[6] * iy) * v + (p[7] + p[8] * iy) * tv) * (1.0 + p[16] * tv)
             if p[11] > 0.0:
                 fd += p[10] * math.tanh(v / p[11])
             elif p[11] < 0.0:
