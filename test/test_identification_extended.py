@@ -256,24 +256,3 @@ def test_a_saturated_field_drives_damping_and_yield_alike(sat_n):
     assert f_off == f_ref
     with pytest.raises(ValueError):
         ExtendedDamperParams(i_sat=0.5, sat_n=-1.0)
-
-
-def test_gas_column_shape_spans_the_polytropic_law():
-    """``q(x)`` (``gas_shape``) with ``x`` and a constant spans ``(1 + x/L)^-n - 1`` exactly.
-
-    At ``n = GAS_N`` a polytropic column of length ``L`` (either sign) is reproduced to
-    rounding by ``f0 + kg1 x + kg2 q(x)``; ``q`` is ``x^2`` at ``L = 0`` and tends to it for
-    long columns (the quadratic law is the limit).
-    """
-    from mr_suspension.core.extended import GAS_N, gas_shape
-
-    x = np.linspace(-0.03, 0.03, 301)
-    for length in (0.05, -0.06, 0.2):
-        law = (1.0 + x / length) ** -GAS_N - 1.0
-        a = np.column_stack([np.ones_like(x), x, gas_shape(x, length)])
-        coef, *_ = np.linalg.lstsq(a, law, rcond=None)
-        assert np.max(np.abs(a @ coef - law)) < 1e-12 * np.max(np.abs(law)) + 1e-15
-    np.testing.assert_array_equal(gas_shape(x, 0.0), x * x)
-    np.testing.assert_allclose(gas_shape(x, 1e4), x * x, rtol=1e-5)
-    # A stroke beyond the column's length is held at 5 % of its volume: finite.
-    assert np.isfinite(gas_shape(np.array([-0.2]), 0.05)).all()

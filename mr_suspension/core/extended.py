@@ -2,9 +2,7 @@
 
 Force (stroke ``x``, + = extension; stroke rate ``v``; field current ``i``)::
 
-    F   = F0 + kg1 x + kg2 q(x) + F_d(u)                  (gas spring k2 in parallel, seed 000)
-    q(x) = x^2, or 2 L^2 [(1 + x/L)^-n_g - 1 + n_g x/L] / (n_g (n_g + 1))   (polytropic gas
-           column of length L = gas_l, either sign; n_g = GAS_N; q = x^2 + O(x^3 / L))
+    F   = F0 + kg1 x + kg2 x^2 + F_d(u)                   (gas spring k2 in parallel, seed 000)
     F_d = M_th [c(i) u A(u) + Fy(i) y (1 + rho y)]        (damping element, seed 003 eq. 5.2)
     c(i) = c0 + c1 g(i),  Fy(i) = fy0 + fy1 g(i)          (the field drives both)
     g(i) = i, or i_s tanh(w), or i_s w / (1 + |w|^m)^(1/m), w = i / i_s   (saturation, m = sat_n;
@@ -55,7 +53,7 @@ from dataclasses import asdict, dataclass, fields
 import functools
 import math
 
-from numba import njit, vectorize
+from numba import njit
 import numpy as np
 
 from mr_suspension.core.fastmath import fast_tanh
@@ -64,12 +62,10 @@ from mr_suspension.core.validation import as_number, build, check_declared, para
 EXT_NSTATE = 10
 S_Z, S_FD, S_E, S_U, S_Y, S_M, S_G, S_DF, S_FD2, S_DTP = range(10)
 (P_F0, P_C0, P_C1, P_FY0, P_FY1, P_VY, P_ISAT, P_XH, P_K1, P_KG1, P_KG2, P_KAPPA, P_TAUTH,
- P_RHO, P_YN, P_HW, P_HN, P_HR, P_SN, P_GL) = range(20)
-P_TAB = 20  # Bouc-Wen table (bw_table) appended to the parameter array: [h_xi, zeta.., g..]
+ P_RHO, P_YN, P_HW, P_HN, P_HR, P_SN) = range(19)
+P_TAB = 19  # Bouc-Wen table (bw_table) appended to the parameter array: [h_xi, zeta.., g..]
 BW_NT = 512
 RHO_MAX = 0.5
-GAS_N = 1.2  # polytropic exponent of the gas column, between isothermal (1) and adiabatic (1.4)
-GAS_MIN = 0.05  # the column's volume ratio (1 + x / L) is held above this
 
 
 @dataclass(frozen=True)
@@ -79,10 +75,9 @@ class ExtendedDamperParams:
     ``f0`` [N], ``c0`` [N s/m], ``c1`` [N s/(m A)], ``fy0`` [N], ``fy1`` [N/A], ``v_y`` [m/s]
     smooth-Bingham baseline; ``i_sat`` [A] field saturation (0 = off), ``sat_n`` [-] the
     exponent of its curve ``w / (1 + |w|^m)^(1/m)`` instead of ``tanh(w)`` (0 = tanh; 1 =
-    Frohlich-Kennelly); ``x_h`` [m] Dahl pre-yield length (0 = off, smooth tanh);
-    ``k_series`` [N/m] series stiffness (0 = rigid); ``k_gas1`` [N/m], ``k_gas2`` [N/m^2] gas
-    spring (``gas_l`` [m]: its column's length, the sign says which way the stroke compresses
-    it; 0 = the quadratic law); ``kappa`` [1/J] fade per stored heat
+    Frohlich-Kennelly); ``x_h`` [m] Dahl
+    pre-yield length (0 = off, smooth tanh); ``k_series`` [N/m] series stiffness (0 = rigid);
+    ``k_gas1`` [N/m], ``k_gas2`` [N/m^2] gas spring; ``kappa`` [1/J] fade per stored heat
     (0 = off), ``tau_thermal`` [s] cooling time constant; ``rho`` [-] rebound/compression
     asymmetry, ``|rho| <= 0.5``; ``yield_n`` [-] exponent of the algebraic yield sigmoid
     ``w / (1 + |w|^n)^(1/n)`` instead of ``tanh(w)`` (0 = off: n = 2 is the algebraic sigmoid,
@@ -116,8 +111,6 @@ class ExtendedDamperParams:
     hyst_r: float = param(0.0, -1.0, 0.5, '', 'Bouc-Wen unloading shape gamma/(beta+gamma)',
                           required=False)
     sat_n: float = param(0.0, 0.3, 20.0, '', 'magnetisation curve exponent', off=0.0,
-                         required=False)
-    gas_l: float = param(0.0, -100.0, 100.0, 'm', 'gas column length (signed)', off=0.0,
                          required=False)
 
     law = 'extended'
@@ -294,27 +287,6 @@ def _hysteretic(p, z, u0, u, dt):
     return zn, a * (1.0 - w) * dz
 
 
-@vectorize(['float64(float64, float64)'], cache=True)
-def gas_shape(x, gas_l):
-    """Gas spring shape ``q(x)`` (module docstring): ``x^2`` at ``gas_l = 0``.
-
-    A polytropic column ``p V^n_g = const`` of length ``L`` pushes with
-    ``p0 A ((1 + x/L)^-n_g - 1)``; less its linear part (``kg1``) and scaled to ``x^2`` at
-    small strokes, so ``kg2`` keeps its meaning and ``|L| -> inf`` is the quadratic law.
-    """
-    if gas_l == 0.0:
-        return x * x
-    e = x / gas_l
-    if abs(e) < 1e-3:  # the series: the closed form cancels to 1e-16 / e^2 there
-        return x * x * (1.0 - (GAS_N + 2.0) / 3.0 * e
-                        + (GAS_N + 2.0) * (GAS_N + 3.0) / 12.0 * e * e)
-    r = 1.0 + e
-    if r < GAS_MIN:
-        r = GAS_MIN
-    return (2.0 * gas_l * gas_l * (r ** -GAS_N - 1.0 + GAS_N * (r - 1.0))
-            / (GAS_N * (GAS_N + 1.0)))
-
-
 @njit(cache=True, fastmath=True, error_model='numpy')
 def _element(p, s, u, i, dt):
     """Damping-element force ``F_d(u)``, ``dF_d/du``, intermediates (Y, M, g), hysteretic state."""
@@ -433,7 +405,7 @@ def extended_force(p, s, x, v, i, dt):
         u = v
         fd, dfd, y, m, g, zh = _element(p, s, u, i, dt)
         tangent = dfd if dfd > 0.0 else 0.0
-    force = p[P_F0] + p[P_KG1] * x + p[P_KG2] * gas_shape(x, p[P_GL]) + fd
+    force = p[P_F0] + p[P_KG1] * x + p[P_KG2] * x * x + fd
     if p[P_XH] > 0.0:
         s[S_Z] = zh
     s[S_FD2] = s[S_FD]

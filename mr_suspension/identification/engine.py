@@ -27,8 +27,7 @@ from numba import njit
 import numpy as np
 from scipy import optimize, signal
 
-from mr_suspension.core.extended import (ExtendedDamperParams, gas_shape, P_F0, P_GL, P_KG1,
-                                         P_KG2, simulate_extended)
+from mr_suspension.core.extended import ExtendedDamperParams, simulate_extended
 
 EFFECTS = ('current_delay', 'current_lag', 'current_lag_asymmetric', 'current_saturation',
            'hysteresis', 'series_stiffness', 'gas_spring', 'thermal_fade', 'direction_asymmetry',
@@ -44,14 +43,14 @@ EFFECT_PARAMS = {
     'current_saturation': ('i_sat', 'sat_n'),
     'hysteresis': ('x_h', 'hyst_n', 'hyst_r'),
     'series_stiffness': ('k_series',),
-    'gas_spring': ('gas_l',),
+    'gas_spring': (),
     'thermal_fade': ('kappa', 'tau_thermal'),
     'direction_asymmetry': ('rho',),
     'yield_shape': ('yield_n',),
 }
 FORCE_DEPENDENT = ('series_stiffness', 'thermal_fade')
 # Searched on a linear scale (may be 0 or < 0).
-LINEAR_PARAMS = ('rho', 'dead_time', 'delay', 'hyst_r', 'gas_l')
+LINEAR_PARAMS = ('rho', 'dead_time', 'delay', 'hyst_r')
 ASYM_GRID = np.array([1.0, 4.0, 15.0, 50.0, 160.0]) * 1e-3  # rise x fall [s]
 YIELD_VY = np.geomspace(0.4, 2.5, 11)  # v_y factors (steps of 1.2) of the joint yield grid
 SAT_SCALE = (0.8, 1.0, 1.25, 1.6)  # i_s factors of the joint saturation-curve grid
@@ -193,8 +192,6 @@ class Dataset:
         i = np.concatenate([r.i_in for r in self.records])
         self.v_ref = float(np.percentile(np.abs(v), 99)) or 1e-3
         self.x_ref = float(np.percentile(np.abs(x - np.mean(x)), 99)) or 1e-3
-        self.x_lo, self.x_hi = float(np.min(x)), float(np.max(x))
-        self.x_span = (self.x_hi - self.x_lo) or 1e-3
         self.f_ref = float(np.percentile(np.abs(self.force - np.mean(self.force)), 99)) or 1.0
         self.i_max = float(np.max(np.abs(i))) or 1.0
         self.t_max = max(r.duration for r in self.records)
@@ -219,12 +216,6 @@ class Dataset:
             return np.array([0, 1, 2, 4, 7, 12, 20, 35, 60, 100, 160]) * ms
         if name == 'i_sat':
             return self.i_max * np.array([0.15, 0.25, 0.4, 0.6, 1.0, 1.6, 2.5, 4.0, 8.0])
-        if name == 'gas_l':
-            # Columns compressed by extension (L < 0) or by compression (L > 0) whose volume
-            # would vanish a quarter to five stroke spans beyond the stroke's end on that side
-            # (1 + x/L = 0); 0 is the quadratic law.
-            f = np.array([0.25, 0.5, 1.0, 2.0, 5.0]) * self.x_span
-            return np.concatenate([-(self.x_hi + f)[::-1], [0.0], -self.x_lo + f])
         if name == 'sat_n':
             return np.array([0.0, 1.0, 1.5, 2.2, 3.2])  # 0: tanh
         if name == 'x_h':
@@ -259,7 +250,7 @@ def neutral_eta():
     return {'v_y': 0.01, 'dead_time': 0.0, 'tau_lag': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0,
             'i_sat': 0.0, 'sat_n': 0.0, 'x_h': 0.0, 'k_series': 0.0, 'kappa': 0.0,
             'tau_thermal': 600.0, 'rho': 0.0, 'delay': 0.0, 'yield_n': 0.0, 'hyst_weight': 1.0,
-            'hyst_n': 1.0, 'hyst_r': 0.0, 'f_ch': 0.0, 'gas_l': 0.0}
+            'hyst_n': 1.0, 'hyst_r': 0.0, 'f_ch': 0.0}
 
 
 def current_dynamics(effects, eta):
@@ -278,7 +269,6 @@ def damper_params(effects, eta, theta):
     d['v_y'] = eta['v_y']
     if 'gas_spring' in effects:
         d['k_gas1'], d['k_gas2'] = theta[5], theta[6]
-        d['gas_l'] = eta.get('gas_l', 0.0)
     if 'current_saturation' in effects:
         d['i_sat'] = eta['i_sat']
         d['sat_n'] = eta.get('sat_n', 0.0)
@@ -389,9 +379,6 @@ def design(ds, effects, eta, theta_prev):
     params = damper_params(effects, eta, theta)
     dyn = current_dynamics(effects, eta)
     p = params.to_array()
-    # The offset and the gas spring act beside the damping element: off in the element's run,
-    # so a search over the gas column re-uses it (element_run's memo).
-    p[[P_F0, P_KG1, P_KG2, P_GL]] = 0.0
     gas = 'gas_spring' in effects
     cols = []
     for j, r in enumerate(ds.records):
@@ -402,7 +389,7 @@ def design(ds, effects, eta, theta_prev):
         mu = m * u  # F_d = M c u + Fy Y (core.extended): Y carries its own multiplier
         c = [np.ones(r.n), mu, mu * g, y, y * g]  # g: the field (saturated current)
         if gas:
-            c += [r.displacement, gas_shape(r.displacement, params.gas_l)]
+            c += [r.displacement, r.displacement ** 2]
         x = np.column_stack(c)
         delay, f_ch = channel_of(effects, eta)
         if delay or f_ch:
@@ -858,7 +845,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
 
     def nelder(cont, fev):
         """Nelder-Mead on log-parameters (linear for the signed ones) from the best point."""
-        scale = {'rho': 1.0, 'delay': 1.0 / ds.dt_min, 'hyst_r': 1.0, 'gas_l': 1.0 / ds.x_span}
+        scale = {'rho': 1.0, 'delay': 1.0 / ds.dt_min, 'hyst_r': 1.0}
         z0 = np.array([state['best'].eta[n] * scale[n] if n in scale
                        else math.log(state['best'].eta[n]) for n in cont])
 
@@ -869,7 +856,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                     e[n] = float(np.clip(val, -0.49, 0.49))
                 elif n == 'hyst_r':
                     e[n] = float(np.clip(val, -1.0, 0.5))
-                elif n in ('delay', 'gas_l'):
+                elif n == 'delay':
                     e[n] = float(val / scale[n])
                 else:
                     e[n] = float(math.exp(val))
