@@ -302,6 +302,63 @@ def test_noisy_velocity_is_fused_with_the_displacement_below_the_wiener_crossove
     assert sensors.fuse_velocity(cols['displacement'], v, dt)[1] is None
 
 
+def _slow_then_fast(rate, seconds=6.0):
+    """Velocity [m/s] and displacement: a 1.5 Hz sine, then fast-reversing strokes.
+
+    The strokes are ``0.1 tanh(8 sin(2 pi 2 t))`` (a smoothed square wave in velocity); the
+    displacement is their integral on a 20x finer grid (trapezoid), sampled at ``rate``.
+    """
+    fine = 20
+    tf = np.arange(int(2 * seconds * rate * fine)) / (rate * fine)
+    slow = tf < seconds
+    vf = np.where(slow, 0.1 * np.sin(2 * np.pi * 1.5 * tf),
+                  0.1 * np.tanh(8 * np.sin(2 * np.pi * 2.0 * (tf - seconds))))
+    xf = np.concatenate([[0.0], np.cumsum(0.5 * (vf[1:] + vf[:-1])) / (rate * fine)])
+    return tf[::fine], vf[::fine], xf[::fine] - np.mean(xf)
+
+
+def test_a_prediction_takes_a_quieter_velocity_than_the_fit():
+    rate = 1000.0
+    dt = 1 / rate
+    t, v, x = _slow_then_fast(rate)
+    rng = np.random.default_rng(8)
+    cols = {'time': t, 'displacement': x + 3e-6 * rng.standard_normal(t.size),
+            'velocity': v + 0.015 * np.std(v) * rng.standard_normal(t.size),
+            'force': 1500 * v + 400 * np.tanh(v / 0.02) + 5 * rng.standard_normal(t.size),
+            'current_command': np.full(t.size, 0.5)}
+    rec = _build(cols)
+    assert 'for predictions zero-phase Butterworth order 4 with a cut-off per sample' in \
+        rec.velocity_source
+    # The fit's velocity: the fusion, then one cut-off for the whole record (the fast half's).
+    fused, fc = sensors.fuse_velocity(cols['displacement'], cols['velocity'], dt)
+    cut, _ = sensors.motion_band(fused, dt)
+    whole = sensors.smooth_velocity(fused, dt, cut)
+    np.testing.assert_allclose(rec.velocity, whole)
+    pred = dataio.for_prediction(rec)
+    assert pred.velocity_pred is None and pred.force is rec.force
+    half = t.size // 2
+    slow, fast = slice(300, half - 1000), slice(half + 1000, -300)
+    err = pred.velocity - v
+    ref = whole - v
+    # The sine needs a few Hz: far less noise there; the strokes keep the record's band.
+    assert np.std(err[slow]) < 0.6 * np.std(ref[slow])
+    assert np.std(err[fast]) < 1.05 * np.std(ref[fast])
+    # Never wider than the record's band, which the ends keep; windows and decimation carry
+    # the prediction velocity along.
+    noise = sensors.velocity_noise(cols['displacement'], cols['velocity'], dt, fc)
+    _, cuts = sensors.ici_lowpass(fused, dt, cut, noise)
+    assert cuts.max() == pytest.approx(cut) and np.median(cuts[slow]) < 0.5 * cut
+    assert cuts[0] == cuts[-1] == pytest.approx(cut)
+    piece = dataio.decimate(dataio.window(rec, 100, 5100), 2)
+    np.testing.assert_array_equal(dataio.for_prediction(piece).velocity,
+                                  rec.velocity_pred[100:5100:2])
+    # A velocity the rig took as a central difference has no white noise: no second one.
+    cols['velocity'] = np.gradient(cols['displacement'] + 2e-6 * rng.standard_normal(t.size),
+                                   dt)
+    assert not sensors.white_noise(cols['velocity'], dt)
+    assert sensors.white_noise(fused - v, dt)
+
+
 @pytest.mark.parametrize('faults, seed', [(('dropout_hold',), 0), (('dropout_hold',), 3),
                                           (('dropout_hold', 'no_velocity'), 0),
                                           (('dropout_hold', 'no_velocity'), 3),

@@ -60,6 +60,9 @@ class Record:
     linearly filled so that model states can run through them, never scored). ``findings`` are the
     sensor findings (``sensors``). ``stamps`` are the input rows' own times relative to the
     first and ``stamp_index`` their grid samples (None when the rows were resampled).
+    ``velocity_pred``: the velocity a prediction takes when it is not ``velocity`` (a noisy
+    measured or derived velocity low-passed with a cut-off per sample, ``for_prediction``),
+    else None.
     """
 
     name: str
@@ -79,6 +82,7 @@ class Record:
     stamps: np.ndarray = None
     stamp_index: np.ndarray = None
     velocity_edge: int = 0
+    velocity_pred: np.ndarray = None
 
     def __post_init__(self):
         """Fill the defaults: ``mask`` all True, ``stamps`` = ``time`` (one row per sample)."""
@@ -158,6 +162,31 @@ def _grid_mask(base, row_mask, gap_mask, n):
     mask = gap_mask.copy()
     mask[base.index] = row_mask
     return mask
+
+
+def _ici_text(cuts, mask):
+    """Describe an ICI low-pass (``sensors.ici_lowpass``) by its cut-offs over ``mask``."""
+    lo, med, hi = np.percentile(cuts[mask], [5, 50, 95])
+    return (f'zero-phase Butterworth order 4 with a cut-off per sample (intersection of '
+            f'confidence intervals): {lo:.3g} / {med:.3g} / {hi:.3g} Hz (5 / 50 / 95 % of '
+            'samples)')
+
+
+def _derived_pred(x, dt, cut, opts, vsrc):
+    """Prediction velocity of a derived one (``Record.velocity_pred``) and its description.
+
+    The central difference of ``x`` low-passed with a cut-off per sample at or below the
+    motion band's ``cut`` (``sensors.ici_lowpass``); None with the user's cut-off or none.
+    """
+    from mr_suspension.identification import sensors
+
+    if opts.velocity_cutoff or cut is None:
+        return None, vsrc
+    noise = sensors.velocity_noise(x, None, dt)
+    if not np.std(noise) > 0:
+        return None, vsrc
+    v_pred, cuts = sensors.ici_lowpass(np.gradient(x, dt), dt, cut, noise)
+    return v_pred, vsrc + '; for predictions ' + _ici_text(cuts, np.ones(x.size, dtype=bool))
 
 
 def velocity_edge(cutoff, dt, n):
@@ -373,6 +402,7 @@ def build_record(name, cols, opts=None, meta=None):
             warnings.warn(f'{name}: peak force only {np.max(np.abs(f[mask])):.3g} N; if the file '
                           'is in kN pass --units force=kN (parameters would be 1000x too small)')
     vsrc = 'measured'
+    v_pred = None  # the velocity predictions use, when not ``v`` (``Record.velocity_pred``)
     top = None  # the cut-off of a low-pass the velocity went through
     cut, order = velocity_band(x, dt, opts)
     band = 'no low-pass' if cut is None else f'zero-phase Butterworth order {order} {cut:.3g} Hz'
@@ -387,6 +417,7 @@ def build_record(name, cols, opts=None, meta=None):
             warnings.warn(f'{name}: {fv["finding"]}: {fv["detail"]}')
             top = cut
             vsrc = derived + '; measured velocity replaced'
+            v_pred, vsrc = _derived_pred(x, dt, cut, opts, vsrc)
         elif not opts.velocity_cutoff:
             # White sensor noise above the motion band only scatters the yield branch.
             vrms = float(np.sqrt(np.mean(v[mask] ** 2)))
@@ -395,20 +426,27 @@ def build_record(name, cols, opts=None, meta=None):
                 # (clean data are left exactly as they are) The displacement's derivative is
                 # the better rate below the crossover f_c; what noise is left above the
                 # motion band is then cut.
+                v_raw = v
                 v, fc = sensors.fuse_velocity(x, v, dt)
                 parts = [] if fc is None else \
                     [f'fused with d(displacement)/dt below {fc:.3g} Hz (Wiener weights)']
                 vcut, removed = sensors.motion_band(v, dt)
                 if vcut is not None and removed > 1e-3 * vrms:
+                    if sensors.white_noise(v_raw, dt):
+                        v_pred, cuts = sensors.ici_lowpass(
+                            v, dt, vcut, sensors.velocity_noise(x, v_raw, dt, fc))
                     v = sensors.smooth_velocity(v, dt, vcut)
                     top = vcut
-                    parts.append(f'zero-phase Butterworth order 4 {vcut:.3g} Hz: noise above '
-                                 f'the motion band removed, {removed:.3g} m/s RMS')
+                    parts.append(f'zero-phase Butterworth order 4 {vcut:.3g} Hz: noise '
+                                 f'above the motion band removed, {removed:.3g} m/s RMS')
+                    if v_pred is not None:
+                        parts.append('for predictions ' + _ici_text(cuts, mask))
                 vsrc = f'measured ({"; ".join(parts)})' if parts else vsrc
     else:
         v = derive_velocity(x, dt, cut, order)
         vsrc = derived
         top = cut
+        v_pred, vsrc = _derived_pred(x, dt, cut, opts, vsrc)
     edge = velocity_edge(top, dt, mask.size)
     if edge:
         # Within half a period of the cut-off from either end the zero-phase filter has
@@ -450,7 +488,7 @@ def build_record(name, cols, opts=None, meta=None):
                   input_kind=kind, dt=dt, command=command, temperature=cols.get('temperature'),
                   velocity_source=vsrc, meta=dict(meta or {}), mask=mask,
                   findings=tuple(findings), stamps=base.stamps, stamp_index=base.index,
-                  velocity_edge=edge)
+                  velocity_edge=edge, velocity_pred=v_pred)
 
 
 def _apply_units(cols, units, defaults=None):
@@ -843,7 +881,8 @@ def decimate(rec, q):
     return replace(rec, time=rec.time[sl], displacement=rec.displacement[sl],
                    velocity=rec.velocity[sl], force=rec.force[sl], i_in=rec.i_in[sl],
                    command=cut(rec.command), temperature=cut(rec.temperature), dt=rec.dt * q,
-                   mask=cut(rec.mask), stamps=stamps, stamp_index=index)
+                   mask=cut(rec.mask), stamps=stamps, stamp_index=index,
+                   velocity_pred=cut(rec.velocity_pred))
 
 
 def window(rec, start, stop, name=None):
@@ -863,7 +902,22 @@ def window(rec, start, stop, name=None):
                    time=rec.time[sl] - rec.time[sl.start], displacement=rec.displacement[sl],
                    velocity=rec.velocity[sl], force=rec.force[sl], i_in=rec.i_in[sl],
                    command=cut(rec.command), temperature=cut(rec.temperature),
-                   mask=cut(rec.mask), stamps=stamps, stamp_index=index)
+                   mask=cut(rec.mask), stamps=stamps, stamp_index=index,
+                   velocity_pred=cut(rec.velocity_pred))
+
+
+def for_prediction(rec):
+    """Return ``rec`` with the velocity a prediction takes (``Record.velocity_pred``, if any).
+
+    Identification and prediction ask different things of a noisy velocity. A fit wants it
+    free of bias, or a series spring's stiffness and a loop's width absorb the bias at the
+    reversals: the motion band's one low-pass. A prediction wants the least error per
+    sample: a cut-off per sample at or below the band's (``sensors.ici_lowpass``), far quieter
+    in slow motion, where a steep yield turns on a few mm/s.
+    """
+    if rec.velocity_pred is None:
+        return rec
+    return replace(rec, velocity=rec.velocity_pred, velocity_pred=None)
 
 
 def limit_duration(records, max_seconds, piece=20.0):

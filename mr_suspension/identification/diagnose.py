@@ -1763,7 +1763,7 @@ class Diagnosis:
         fit = res.final if model == 'extended' else res.baseline
         params = fit.params()
         model_io.warn_outside(res.fitted_range, record, params)
-        record = denoise_current(record, res.driver)
+        record = denoise_current(dataio.for_prediction(record), res.driver)
         return engine.simulate(record, params, fit.dynamics(), **fit.channel)
 
     def score(self, record, model='extended'):

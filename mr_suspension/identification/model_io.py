@@ -23,6 +23,7 @@ import numpy as np
 
 from mr_suspension.core.driver import fitted_dynamics
 from mr_suspension.core.extended import ExtendedDamperParams
+from mr_suspension.identification import data as dataio
 from mr_suspension.identification import engine
 
 FORMAT = 'mr_suspension.fitted_damper/1'
@@ -198,6 +199,7 @@ def predict(model, record):
     params = ExtendedDamperParams.from_dict(model['damper'])
     if 'fitted_range' in model:
         warn_outside(model['fitted_range'], record, params)
+    record = dataio.for_prediction(record)  # as Diagnosis.predict
     if model.get('driver'):
         # As in the fit: a measured coil current is cleaned by the command through the
         # fitted driver (diagnose.denoise_current).

@@ -519,13 +519,96 @@ def fuse_velocity(x, v, dt):
     d = np.gradient(np.asarray(x, dtype=float), dt) - v
     if not np.max(np.abs(d)) > 1e-9 * np.max(np.abs(v)):
         return v, None
+    return _fuse(x, v, dt, fc), fc
+
+
+def _fuse(x, v, dt, fc):
+    """``v + filtfilt_1(dx/dt - v)`` at the crossover ``fc`` (``fuse_velocity``'s chain)."""
+    d = np.gradient(np.asarray(x, dtype=float), dt) - v
     if fc >= 0.45 / dt:
-        return v + d, fc
+        return v + d
     sos = signal.butter(1, fc * 2.0 * dt, output='sos')
     # Even (mirror) padding: the difference is noise about zero, and an odd extension would
     # shift the padding by twice its first, noisy sample.
     pad = int(min(d.size - 1, max(15, 3.0 / (fc * dt))))
-    return v + signal.sosfiltfilt(sos, d, padtype='even', padlen=pad), fc
+    return v + signal.sosfiltfilt(sos, d, padtype='even', padlen=pad)
+
+
+def white_noise(y, dt):
+    """Tell whether the noise of ``y`` is white (flat over the upper half of the band).
+
+    The median Welch spectrum over 0.15-0.22 of the sampling rate against that over 0.3-0.45
+    (``_spectrum``'s white level): white noise gives 1, the noise of a central-difference
+    derivative of a noisy signal (``sin^2(2 pi f dt)``-shaped, a velocity the rig took as
+    such a derivative) about 1.8. True below ``WHITE_TOL``.
+    """
+    spec = _spectrum(y, dt)
+    if spec is None or not spec[2] > 0.0:
+        return False
+    f, p, white = spec
+    mid = (f >= 0.15 / dt) & (f < 0.22 / dt)
+    return bool(mid.any() and np.median(p[mid]) < WHITE_TOL * white)
+
+
+WHITE_TOL = 1.45      # ``white_noise``: mid-band / top-band spectrum below this is white
+ICI_GAMMA = 2.0       # half-width of each confidence interval, in noise standard deviations
+ICI_STEP = 1.5        # ratio of neighbouring cut-offs of the ladder
+ICI_NOISE = 1 << 15   # samples of the noise realisation that sets each rung's deviation
+
+
+def velocity_noise(x, v, dt, fc=None, seed=0):
+    """Draw the noise of a velocity estimate: white at the levels ``_spectrum`` finds.
+
+    With a measured velocity ``v``: ``fuse_velocity``'s output at the crossover ``fc`` the
+    record's fusion used (None: no fusion, ``v``'s noise alone); without (``v`` None): the
+    central difference of the displacement ``x``'s noise. At most ``ICI_NOISE`` samples;
+    seeded, so a record always gives the same estimate.
+    """
+    n = int(min(np.asarray(x).size, ICI_NOISE))
+    rng = np.random.default_rng(seed)
+    sx = _spectrum(x, dt)
+    ex = (0.0 if sx is None else math.sqrt(sx[2] * 0.5 / dt)) * rng.standard_normal(n)
+    if v is None:
+        return np.gradient(ex, dt)
+    sv = _spectrum(v, dt)
+    ev = (0.0 if sv is None else math.sqrt(sv[2] * 0.5 / dt)) * rng.standard_normal(n)
+    return ev if fc is None else _fuse(ex, ev, dt, fc)
+
+
+def ici_lowpass(y, dt, cut, noise, gamma=ICI_GAMMA):
+    """Zero-phase low-pass of ``y`` at ``cut`` or, per sample, as far below as the data allow.
+
+    A ladder of 4th-order zero-phase Butterworth low-passes ``y_j`` from ``cut`` [Hz] down to
+    ``BAND_MIN`` in steps of ``ICI_STEP``; ``sigma_j`` is the deviation of ``noise`` (``y``'s
+    noise, ``velocity_noise``) through the same filter. From ``cut`` down, the intervals
+    ``y_j +- gamma sigma_j`` are intersected, and each sample keeps the last rung whose
+    interval still meets every wider one (intersection of confidence intervals: Goldenshluger
+    & Nemirovski 1997, Katkovnik 1999). Slow motion is smoothed below ``cut``, a fast reversal
+    keeps ``cut``; never wider than ``cut``, so never noisier than its one low-pass. Within
+    half a period of a rung's cut-off from either end (one-sided there) that rung is not taken.
+    Returns ``(estimate, cut-off per sample [Hz])``.
+    """
+    y = np.asarray(y, dtype=float)
+    k = max(0, int(math.floor(math.log(cut / BAND_MIN) / math.log(ICI_STEP))))
+    cuts = cut / ICI_STEP ** np.arange(k + 1)
+    edge = min(noise.size // 4, int(3.0 / (cuts[-1] * dt)))
+    lo = np.full(y.size, -np.inf)
+    hi = np.full(y.size, np.inf)
+    alive = np.ones(y.size, dtype=bool)
+    out = np.empty_like(y)
+    chosen = np.empty_like(y)
+    ends = np.minimum(np.arange(y.size), np.arange(y.size)[::-1])
+    for c in cuts:
+        est = lowpass(y, dt, c, order=4)
+        sig = float(np.std(lowpass(noise, dt, c, order=4)[edge:noise.size - edge]))
+        lo = np.maximum(lo, est - gamma * sig)
+        hi = np.minimum(hi, est + gamma * sig)
+        # within half a period of either end the filter is one-sided (``data.velocity_edge``)
+        if c < cuts[0]:
+            alive &= (lo <= hi) & (ends >= math.ceil(0.5 / (c * dt)))
+        out[alive] = est[alive]
+        chosen[alive] = c
+    return out, chosen
 
 
 def smooth_velocity(v, dt, cutoff):
