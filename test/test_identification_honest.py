@@ -1069,17 +1069,19 @@ def test_a_force_channel_delay_beside_a_loop_is_judged_against_the_loop_without_
     assert step['candidates']['channel_delay']['gain_mse'] > 0.5
 
 
-def test_the_prediction_velocity_is_nearer_the_truth_where_the_yield_turns():
+@pytest.mark.parametrize('faults', [(), ('derived_velocity',)])
+def test_the_prediction_velocity_is_nearer_the_truth_where_the_yield_turns(faults):
     """Truth records with a noisy measured velocity: ``for_prediction``'s velocity errs less.
 
     The truth's velocity is its own (the derivative of the spline through the programme); the
-    records carry white velocity noise (0.5-2 % of its RMS) beside a noisy displacement.
+    records carry white velocity noise (0.5-2 % of its RMS) beside a noisy displacement, or
+    a velocity the rig took as the derivative of that displacement (``derived_velocity``).
     Near the yield (|v| < 10 mm/s, usable samples) and over the record, against the fit's
     velocity (one low-pass at the motion band).
     """
     near, whole = [], []
     for seed in range(6):
-        case = cases.make_case(seed, (), sensor_faults=(), duration=12.0)
+        case = cases.make_case(seed, (), sensor_faults=faults, duration=12.0)
         rec = _record(case.columns)
         pred = dataio.for_prediction(rec)
         assert rec.velocity_pred is not None and pred.velocity is rec.velocity_pred

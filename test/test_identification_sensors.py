@@ -357,6 +357,17 @@ def test_a_prediction_takes_a_quieter_velocity_than_the_fit():
                                    dt)
     assert not sensors.white_noise(cols['velocity'], dt)
     assert sensors.white_noise(fused - v, dt)
+    # Its noise is the derivative of the displacement's when it differentiates the recorded
+    # displacement (level within DERIV_TOL): a noise model, and a prediction velocity, still.
+    cols['velocity'] = np.gradient(cols['displacement'], dt)
+    e = sensors.measured_velocity_noise(cols['displacement'], cols['velocity'], dt)
+    assert e is not None and e.size == t.size
+    assert np.std(e) == pytest.approx(np.std(np.gradient(3e-6 * rng.standard_normal(t.size),
+                                                         dt)), rel=0.15)
+    assert _build(cols).velocity_pred is not None
+    # Coloured noise of another kind (a sensor's own 150 Hz low-pass) is not modelled.
+    coloured = sensors.lowpass(0.05 * np.std(v) * rng.standard_normal(t.size), dt, 150.0)
+    assert sensors.measured_velocity_noise(cols['displacement'], v + coloured, dt) is None
 
 
 @pytest.mark.parametrize('faults, seed', [(('dropout_hold',), 0), (('dropout_hold',), 3),

@@ -432,9 +432,9 @@ def build_record(name, cols, opts=None, meta=None):
                     [f'fused with d(displacement)/dt below {fc:.3g} Hz (Wiener weights)']
                 vcut, removed = sensors.motion_band(v, dt)
                 if vcut is not None and removed > 1e-3 * vrms:
-                    if sensors.white_noise(v_raw, dt):
-                        v_pred, cuts = sensors.ici_lowpass(
-                            v, dt, vcut, sensors.velocity_noise(x, v_raw, dt, fc))
+                    noise = sensors.measured_velocity_noise(x, v_raw, dt, fc)
+                    if noise is not None:
+                        v_pred, cuts = sensors.ici_lowpass(v, dt, vcut, noise)
                     v = sensors.smooth_velocity(v, dt, vcut)
                     top = vcut
                     parts.append(f'zero-phase Butterworth order 4 {vcut:.3g} Hz: noise '

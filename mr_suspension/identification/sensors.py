@@ -575,6 +575,28 @@ def velocity_noise(x, v, dt, fc=None, seed=0):
     return ev if fc is None else _fuse(ex, ev, dt, fc)
 
 
+def measured_velocity_noise(x, v, dt, fc=None):
+    """Draw the noise of a measured velocity ``v`` after fusion at ``fc``, or None if unknown.
+
+    White noise (``white_noise``): ``velocity_noise(x, v, dt, fc)``. Otherwise the velocity
+    may be the rig's own derivative of the noisy displacement (over its stamps, so not
+    exactly ``np.gradient(x, dt)`` and fused all the same): its noise is then that of the
+    displacement's central difference, ``velocity_noise(x, None, dt)``, whose white level
+    (median spectrum above 0.3 fs) must match ``v``'s within ``DERIV_TOL``; other coloured
+    noise is not modelled (None).
+    """
+    if white_noise(v, dt):
+        return velocity_noise(x, v, dt, fc)
+    e = velocity_noise(x, None, dt)
+    se, sv = _spectrum(e, dt), _spectrum(v, dt)
+    if se is None or sv is None or not (se[2] > 0.0 and sv[2] > 0.0):
+        return None
+    return e if abs(math.log(sv[2] / se[2])) < math.log(DERIV_TOL) else None
+
+
+DERIV_TOL = 1.5       # ``measured_velocity_noise``: white levels of ``v`` and dx/dt this close
+
+
 def ici_lowpass(y, dt, cut, noise, gamma=ICI_GAMMA):
     """Zero-phase low-pass of ``y`` at ``cut`` or, per sample, as far below as the data allow.
 
