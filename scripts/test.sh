@@ -59,4 +59,6 @@ pydocstyle --convention=pep257 --add-ignore=D100,D101,D102,D103,D104,D105,D106,D
 echo '== installed copy (non-editable install into a throwaway venv, run from elsewhere)'
 bash scripts/test.sh --install-only
 echo '== pytest'
-python -m pytest -q "$@"
+# Two workers (pytest-xdist); the tests that start ROS nodes share one of them
+# (test/conftest.py), so no two node sets ever meet on one DDS domain.
+python -m pytest -q -n "${MR_TEST_WORKERS:-2}" --dist loadgroup "$@"

@@ -1,6 +1,7 @@
 """Shared fixtures: paths to the repository and to the read-only shared data."""
 
 from pathlib import Path
+import re
 
 import pytest
 
@@ -19,3 +20,25 @@ def shared_dir():
     """Return ``../shared`` (seeds and measured data); it must exist (CI has it)."""
     assert SHARED.is_dir(), f'{SHARED} is missing: tests need ../shared beside the repo'
     return SHARED
+
+
+# A test module that can start ROS nodes: it imports rclpy or the node package, or runs the
+# command-line subcommands that launch the node set (``nodes``, ``demo``).
+ROS_MODULE = re.compile(r'\brclpy\b|mr_suspension\.nodes\b|from mr_suspension import nodes'
+                        r'|\[\s*[\'"](nodes|demo)[\'"]')
+
+
+def pytest_collection_modifyitems(config, items):
+    """Put every test of a module that starts ROS nodes in one pytest-xdist group.
+
+    With ``--dist loadgroup`` (``scripts/test.sh``) the group runs in one worker, one test
+    at a time, so two node sets never share a DDS domain and topic; the other tests, pure
+    numerics, run beside it. Without xdist the mark does nothing.
+    """
+    ros = {}
+    for item in items:
+        path = Path(item.path)
+        if path not in ros:
+            ros[path] = bool(ROS_MODULE.search(path.read_text(encoding='utf-8')))
+        if ros[path]:
+            item.add_marker(pytest.mark.xdist_group('ros'))
