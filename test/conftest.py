@@ -28,12 +28,18 @@ ROS_MODULE = re.compile(r'\brclpy\b|mr_suspension\.nodes\b|from mr_suspension im
                         r'|\[\s*[\'"](nodes|demo)[\'"]')
 
 
-def pytest_collection_modifyitems(config, items):
-    """Put every test of a module that starts ROS nodes in one pytest-xdist group.
+def pytest_configure(config):
+    """Register the ``ros`` mark."""
+    config.addinivalue_line('markers', 'ros: the test starts ROS nodes (real-time timeouts)')
 
-    With ``--dist loadgroup`` (``scripts/test.sh``) the group runs in one worker, one test
-    at a time, so two node sets never share a DDS domain and topic; the other tests, pure
-    numerics, run beside it. Without xdist the mark does nothing.
+
+def pytest_collection_modifyitems(config, items):
+    """Mark every test of a module that starts ROS nodes ``ros``.
+
+    ``scripts/test.sh`` runs them first, one at a time in one process on an otherwise idle
+    machine (their nodes keep real-time watchdogs and lock-step re-sends of tens of ms, and a
+    lock-step run under full CPU load was seen to differ from the offline one), then the pure
+    numerics in two pytest-xdist workers.
     """
     ros = {}
     for item in items:
@@ -41,4 +47,4 @@ def pytest_collection_modifyitems(config, items):
         if path not in ros:
             ros[path] = bool(ROS_MODULE.search(path.read_text(encoding='utf-8')))
         if ros[path]:
-            item.add_marker(pytest.mark.xdist_group('ros'))
+            item.add_marker(pytest.mark.ros)

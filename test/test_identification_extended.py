@@ -8,6 +8,7 @@ import pytest
 from mr_suspension.core import damper
 from mr_suspension.core.extended import (EXT_NSTATE, extended_force, ExtendedDamperParams,
                                          simulate_extended)
+from mr_suspension.identification import data as dataio
 from mr_suspension.identification import engine, model_io, synthetic
 
 
@@ -59,6 +60,9 @@ def test_step_by_step_equals_fitted_prediction():
     dyn = {'dead_time': 0.004, 'tau_rise': 0.003, 'tau_fall': 0.02}
     model = model_io.model_dict(params, dyn, ['all'], 'current_command')
     fit_pred = model_io.predict(model, rec)
+    # A prediction takes the record's prediction velocity (data.for_prediction), as do the
+    # step-by-step calls and the regressors below.
+    rec = dataio.for_prediction(rec)
     i_f = engine.field_current(rec.i_in, rec.dt, 0.004, 0.003, 0.02)
     p = params.to_array()
     s = np.zeros(EXT_NSTATE)
