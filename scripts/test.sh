@@ -58,26 +58,16 @@ pydocstyle --convention=pep257 --add-ignore=D100,D101,D102,D103,D104,D105,D106,D
   mr_suspension test benchmarks setup.py
 echo '== installed copy (non-editable install into a throwaway venv, run from elsewhere)'
 bash scripts/test.sh --install-only
-# The tests that start ROS nodes (mark `ros`, test/conftest.py) run one at a time at normal
-# priority, beside the pure numerics in two pytest-xdist workers at nice 10: the nodes keep
-# real-time watchdogs and lock-step re-sends of tens of ms, and a lock-step run beside full
-# CPU load at equal priority was seen to differ from the offline run. Exit code 5 is "no
+# The tests that start ROS nodes (mark `ros`, test/conftest.py) run first, one at a time on
+# an idle machine; then the pure numerics in two pytest-xdist workers. Exit code 5 is "no
 # test selected" (arguments that pick tests of one kind only).
-run_pytest() {
+pytest_part() {
   local rc=0
-  "$@" || rc=$?
-  if [ "$rc" -eq 5 ]; then rc=0; fi
-  return "$rc"
+  python -m pytest -q "$@" || rc=$?
+  if [ "$rc" -ne 0 ] && [ "$rc" -ne 5 ]; then exit "$rc"; fi
+  return 0
 }
-echo '== pytest: the pure numerics (two workers, nice 10), beside the ROS node tests'
-log=$(mktemp)
-run_pytest python -m pytest -q -m ros "$@" > "$log" 2>&1 &
-ros=$!
-rest=0
-run_pytest nice -n 10 python -m pytest -q -m 'not ros' -n "${MR_TEST_WORKERS:-2}" "$@" || rest=$?
-rc=0
-wait "$ros" || rc=$?
-echo '== pytest: tests that start ROS nodes (one at a time)'
-cat "$log"
-rm -f "$log"
-[ "$rest" -eq 0 ] && [ "$rc" -eq 0 ]
+echo '== pytest: tests that start ROS nodes'
+pytest_part -m ros "$@"
+echo '== pytest: the rest, two workers'
+pytest_part -m 'not ros' -n "${MR_TEST_WORKERS:-2}" "$@"

@@ -36,10 +36,10 @@ def pytest_configure(config):
 def pytest_collection_modifyitems(config, items):
     """Mark every test of a module that starts ROS nodes ``ros``.
 
-    ``scripts/test.sh`` runs them one at a time in one process at normal priority, beside
-    the pure numerics in two pytest-xdist workers at nice 10 (the nodes keep real-time
-    watchdogs and lock-step re-sends of tens of ms; a lock-step run beside full CPU load at
-    equal priority was seen to differ from the offline one).
+    ``scripts/test.sh`` runs them first, one at a time in one process on an otherwise idle
+    machine (their nodes keep real-time watchdogs and lock-step re-sends of tens of ms, and a
+    lock-step run under full CPU load was seen to differ from the offline one), then the pure
+    numerics in two pytest-xdist workers.
     """
     ros = {}
     for item in items:
