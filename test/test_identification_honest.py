@@ -545,8 +545,9 @@ def test_element_runs_are_memoised_exactly(monkeypatch):
 
     ``engine.element_run`` keys the run on the parameter array, the current dynamics and the
     record: the regressors of a memoised design equal those of a fresh dataset, a delay or
-    low-pass change does not simulate again, another theta does, and the memo stays within
-    its byte budget (oldest out first).
+    low-pass change does not simulate again, nor does another theta without a series spring
+    or a thermal fade (the element's trajectories do not depend on it then); with one, it
+    does. The memo stays within its byte budget (oldest out first).
     """
     ds = _arctan_dataset(3)
     effects = ('channel_delay', 'hysteresis')
@@ -567,10 +568,17 @@ def test_element_runs_are_memoised_exactly(monkeypatch):
     assert np.array_equal(x0, x2) and not np.array_equal(x0, x1)
     fresh = engine.Dataset(ds.records, n_folds=5)
     assert np.array_equal(engine.design(fresh, effects, {**eta, 'delay': 2e-3}, theta), x1)
-    engine.design(ds, effects, eta, 1.5 * theta)
+    assert len(calls) == 2  # the fresh dataset's own run
+    x3 = engine.design(ds, effects, eta, 1.5 * theta)
+    assert len(calls) == 2
+    assert np.array_equal(engine.design(fresh, effects, eta, 1.5 * theta), x3)
+    spring, e_spring = effects + ('series_stiffness',), {**eta, 'k_series': 3e5}
+    x4 = engine.design(ds, spring, e_spring, theta)
+    x5 = engine.design(ds, spring, e_spring, 1.5 * theta)
+    assert len(calls) == 4 and not np.array_equal(x4, x5)
     engine.design(ds, ('channel_delay', 'hysteresis', 'current_delay'),
                   {**eta, 'dead_time': 0.01}, theta)
-    assert len(calls) == 4
+    assert len(calls) == 5
     run = engine.element_run(ds, 0, engine.damper_params(effects, eta, theta).to_array(),
                              engine.current_dynamics(effects, eta))
     assert not any(a.flags.writeable for a in run)
@@ -578,6 +586,27 @@ def test_element_runs_are_memoised_exactly(monkeypatch):
     for k in range(4):
         engine.design(ds, effects, {**eta, 'x_h': 1e-3 * (k + 1)}, theta)
     assert len(ds._runs) == 2 and ds._runs_bytes <= engine.RUN_CACHE_BYTES
+
+
+def test_block_and_fold_sums_of_squares_equal_numpys():
+    """``engine._grams``: per-range ``X^T X``, ``X^T y``, ``y^T y`` and their group sums."""
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((900, 5)) * [1.0, 1e3, 1e-2, 5.0, 1e4]
+    y = rng.standard_normal(900) * 300.0
+    order = rng.permutation(900)
+    bounds = np.array([40, 100, 310, 311, 600, 880])
+    group = np.array([2, 0, 2, 1, 0])
+    g, h, e, gg, hg, eg = engine._grams(x, y, order, bounds, group, 4)
+    for j in range(5):
+        xs, ys = x[order[bounds[j]:bounds[j + 1]]], y[order[bounds[j]:bounds[j + 1]]]
+        np.testing.assert_allclose(g[j], xs.T @ xs, rtol=1e-12, atol=1e-9 * abs(g[j]).max())
+        np.testing.assert_allclose(h[j], xs.T @ ys, rtol=1e-12, atol=1e-9 * abs(h[j]).max())
+        assert e[j] == pytest.approx(ys @ ys, rel=1e-12)
+    for f in range(4):
+        np.testing.assert_allclose(gg[f], g[group == f].sum(0), rtol=1e-12, atol=1e-6)
+        np.testing.assert_allclose(hg[f], h[group == f].sum(0), rtol=1e-12, atol=1e-6)
+        assert eg[f] == pytest.approx(e[group == f].sum(), rel=1e-12)
+    assert not gg[3].any() and eg[3] == 0.0  # a group without ranges
 
 
 def test_yield_exponent_is_searched_with_its_smoothing_velocity():
