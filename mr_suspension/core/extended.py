@@ -438,3 +438,20 @@ def simulate_extended(p, x, v, i, dt):
         m[k] = s[S_M]
         g[k] = s[S_G]
     return f, u, y, m, g
+
+
+_FORCE_ONLY = np.array([P_F0, P_C0, P_C1, P_FY0, P_FY1, P_KG1, P_KG2, P_TAUTH])
+
+
+def trajectory_key(p):
+    """Bytes of ``p`` that the ``u, Y, M, g`` of ``simulate_extended`` depend on.
+
+    Without series stiffness and thermal fade ``u = v`` and ``M_th = 1`` (module docstring),
+    so they do not depend on ``F0, c0, c1, Fy0, Fy1, kg1, kg2`` (nor on ``tau_th``): those
+    slots are zeroed. With either effect the force feeds the state back: all of ``p``.
+    """
+    if p[P_K1] > 0.0 or p[P_KAPPA] > 0.0:
+        return p.tobytes()
+    q = p.copy()
+    q[_FORCE_ONLY] = 0.0
+    return q.tobytes()

@@ -27,9 +27,8 @@ from numba import njit
 import numpy as np
 from scipy import optimize, signal
 
-from mr_suspension.core.extended import (ExtendedDamperParams, P_C0, P_C1, P_F0, P_FY0, P_FY1,
-                                         P_K1, P_KAPPA, P_KG1, P_KG2, P_TAUTH,
-                                         simulate_extended)
+from mr_suspension.core.extended import (ExtendedDamperParams, simulate_extended,
+                                         trajectory_key)
 
 EFFECTS = ('current_delay', 'current_lag', 'current_lag_asymmetric', 'current_saturation',
            'hysteresis', 'series_stiffness', 'gas_spring', 'thermal_fade', 'direction_asymmetry',
@@ -344,30 +343,17 @@ def simulate(record, params, dyn, delay=0.0, f_ch=0.0):
 RUN_CACHE_BYTES = 96e6  # per Dataset
 
 
-_LINEAR_SLOTS = np.array([P_F0, P_C0, P_C1, P_FY0, P_FY1, P_KG1, P_KG2, P_TAUTH])
-
-
-def _run_key(p):
-    """Bytes of ``p`` that the element's trajectories depend on (``element_run``)."""
-    if p[P_K1] > 0.0 or p[P_KAPPA] > 0.0:
-        return p.tobytes()
-    q = p.copy()
-    q[_LINEAR_SLOTS] = 0.0
-    return q.tobytes()
-
-
 def element_run(ds, j, p, dyn):
     """Field current and element trajectories ``(i_f, u, y, m, g)`` of record ``j`` at ``p``.
 
     A pure function of the record, the parameter array and the current dynamics, memoised
     per dataset (least recently used, ``RUN_CACHE_BYTES``): a search that moves only the
     force channel (``delay``, ``f_ch``) or returns to a point it has seen re-uses the run
-    (a third of the simulations of a whole-catalogue diagnosis). Without a series spring and
-    a thermal fade the trajectories do not depend on the linear parameters (``u = v``,
-    ``M_th = 1``: module docstring of ``core.extended``), so those are left out of the key
-    and a search that only refits them re-uses the run too.
+    (a third of the simulations of a whole-catalogue diagnosis). The key holds only what the
+    trajectories depend on (``core.extended.trajectory_key``): without a series spring and a
+    thermal fade a search that only refits the linear parameters re-uses the run too.
     """
-    key = (j, _run_key(p), dyn['dead_time'], dyn['tau_rise'], dyn['tau_fall'])
+    key = (j, trajectory_key(p), dyn['dead_time'], dyn['tau_rise'], dyn['tau_fall'])
     with ds._runs_lock:
         hit = ds._runs.get(key)
         if hit is not None:
