@@ -439,3 +439,37 @@ def test_transfer_floor_counts_a_drifting_channels_level_shift():
     still = cases.make_case(3, (), sensor_faults=(), duration=6.0, measured_current=False)
     assert cases.transfer_floor(still, still.unseen()) == pytest.approx(
         still.unseen().floor_nrmse, rel=0.05)
+
+
+_DIGEST = """
+import hashlib, sys
+import numpy as np
+from mr_suspension.truth import cases
+h = hashlib.sha1()
+for shape in ('bingham_tanh', 'algebraic', 'arctan', 'bouc_wen'):
+    case = cases.make_case(7, ('series_stiffness', 'thermal_fade', 'current_lag'), shape=shape,
+                           sensor_faults=('derived_velocity',), duration=1.5)
+    for name in sorted(case.columns):
+        h.update(np.ascontiguousarray(case.columns[name]).tobytes())
+print(h.hexdigest())
+"""
+
+
+def test_a_case_is_the_same_data_from_a_fresh_compile_and_from_numbas_cache(tmp_path):
+    """The benchmark's records must not depend on the compile state of the truth's kernels.
+
+    With ``fastmath`` they did: the force of one case differed by up to one ulp between a
+    process that compiled the kernels and one that loaded them from numba's cache (9.1e-13 N
+    in 6785 of 12000 samples), and a chaotic selection turned that into another cause set
+    (1.22 or 2.49 floors on seed-1 case 142). Two processes, one cache folder: the first
+    compiles and writes it, the second loads it.
+    """
+    import os
+    import subprocess
+    import sys
+    env = {**os.environ, 'NUMBA_CACHE_DIR': str(tmp_path / 'numba')}
+    out = [subprocess.run([sys.executable, '-c', _DIGEST], env=env, capture_output=True,
+                          text=True, timeout=600, check=True).stdout.strip()
+           for _ in range(2)]
+    assert any((tmp_path / 'numba').rglob('*.nbi'))  # the second process had a cache
+    assert len(out[0]) == 40 and out[0] == out[1]

@@ -852,13 +852,22 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
                     break
 
     def update_theta():
+        """Next generation: the states at the best theta.
+
+        A step that diverges (a soft spring's states at a theta far from the simulated one:
+        every later point infinite, the fit lost) is undone.
+        """
         # A diverged best (every point so far infinite) has no theta to iterate from.
-        if force_dep and state['best'] is not None and np.isfinite(state['best'].sse):
-            e = dict(state['best'].eta)
-            theta[:] = state['best'].theta
-            state['best'] = None
-            state['gen'] += 1
-            ev(e)
+        if not (force_dep and state['best'] is not None and np.isfinite(state['best'].sse)):
+            return
+        e = dict(state['best'].eta)
+        prev = (theta.copy(), dict(state))
+        theta[:] = state['best'].theta
+        state['best'] = None
+        state['gen'] += 1
+        if not np.isfinite(ev(e).sse):
+            theta[:] = prev[0]
+            state.update(prev[1])
 
     def cur_eta():
         return state['best'].eta if state['best'] is not None else eta

@@ -210,7 +210,7 @@ class RigTruth:
 
 # ---------------------------------------------------------------------------- current chain
 
-@njit(cache=True, fastmath=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def _lag_rhs(u, y1, y2, tau1, tr, tf):
     d1 = (u - y1) / tau1 if tau1 > 0.0 else 0.0
     if tr > 0.0:
@@ -221,7 +221,7 @@ def _lag_rhs(u, y1, y2, tau1, tr, tf):
     return d1, d2
 
 
-@njit(cache=True, fastmath=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def _lag_piece(u, y1, y2, h, tau1, tr, tf):
     """Advance both lags over ``h`` at a constant input ``u`` (RK4, ``h <= tau/2`` steps)."""
     tmin = 1e300
@@ -247,7 +247,7 @@ def _lag_piece(u, y1, y2, h, tau1, tr, tf):
     return y1, y2
 
 
-@njit(cache=True, fastmath=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def _lag_chain(cmd, dt, nf, delay, tau1, tr, tf):
     """Delayed held command through a lag ``tau1`` then a rise/fall lag, on a fine grid.
 
@@ -284,7 +284,7 @@ def _lag_chain(cmd, dt, nf, delay, tau1, tr, tf):
 
 # ------------------------------------------------------------------------------ force law
 
-@njit(cache=True, fastmath=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def _static_yield(shape, w):
     """Return the static yield function ``S(w)`` and ``S'(w)``."""
     if shape == 1:
@@ -296,7 +296,7 @@ def _static_yield(shape, w):
     return t, 1.0 - t * t
 
 
-@njit(cache=True, fastmath=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def _element(p, u, y, dy, ie, temp):
     """Damping-element force and ``dF_d/du`` for a yield value ``y`` with ``dy/du``."""
     c = p[P_C0] + p[P_C1] * ie
@@ -320,7 +320,7 @@ def _element(p, u, y, dy, ie, temp):
     return f, df
 
 
-@njit(cache=True, fastmath=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def _element_u(p, u, z, ie, temp):
     """Element force, slope and yield value at element velocity ``u`` and state ``z``."""
     w = p[P_HYST]
@@ -335,7 +335,7 @@ def _element_u(p, u, z, ie, temp):
     return f, df, y
 
 
-@njit(cache=True, fastmath=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def _solve_u(p, target, z, ie, temp, u0):
     """Element velocity with ``F_d(u) = target`` (monotone: Newton kept inside a bracket).
 
@@ -371,7 +371,7 @@ def _solve_u(p, target, z, ie, temp, u0):
     return u, df, y
 
 
-@njit(cache=True, fastmath=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def _rhs(p, s, v, ie, ug, d):
     """State derivative ``d`` of ``s = (F_d, z, T)``; returns ``(u, F_d, y)``."""
     series = p[P_K1] > 0.0
@@ -398,7 +398,7 @@ def _rhs(p, s, v, ie, ug, d):
     return u, f, y
 
 
-@njit(cache=True, fastmath=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def _inputs(coef, dt, ief, hf, tau):
     """Displacement, velocity (cubic spline) and effective current (fine grid) at ``tau``."""
     nseg = coef.shape[1]
@@ -420,7 +420,7 @@ def _inputs(coef, dt, ief, hf, tau):
     return x, v, ief[m] + fr * (ief[m + 1] - ief[m])
 
 
-@njit(cache=True, fastmath=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def _stiffness(p, s, v, ie, ug):
     """Spectral radius of the ``(F_d, z)`` Jacobian (analytic, exact for the 2 x 2 block).
 
@@ -469,7 +469,7 @@ def _stiffness(p, s, v, ie, ug):
     return abs(u * phiz) if hyst else 0.0
 
 
-@njit(cache=True, fastmath=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def _run_force(p, coef, dt, ief, substeps):
     """Integrate ``(F_d, z, T)`` over the record; return per-sample arrays.
 
