@@ -283,3 +283,25 @@ def test_a_diverging_separable_step_does_not_lose_the_fit(monkeypatch):
     res = engine.fit(ds, ('series_stiffness',), start_eta=base.eta, start_theta=start,
                      new=('series_stiffness',), sweeps=1)
     assert np.isfinite(res.sse) and res.sse <= base.sse * (1 + 1e-9)
+
+
+def test_a_linear_solution_outside_the_laws_ranges_is_no_model():
+    """A yield force per ampere beyond ``ExtendedDamperParams``' range scores as infinitely bad.
+
+    Else the search could choose it and the model be refused when built (a crash in the
+    diagnosis of a 3 s record behind a 5e4 N/m spring, fy1 = 1.2e7 N/A). Here the current's
+    yield regressor is scaled down 1e5 times, so least squares asks for fy1 about 5e7 N/A.
+    """
+    rec, _ = synthetic.make_record((), seed=2, duration=3.0)
+    ds = engine.Dataset([rec], n_folds=5)
+    base = engine.fit(ds, ())
+    x = engine.design(ds, (), base.eta, base.theta)
+    ok = engine.CVResult(ds, x, base.eta)
+    assert np.isfinite(ok.sse) and np.isfinite(ok.test).all()
+    engine.damper_params((), base.eta, ok.theta)  # plausible: builds
+    x[:, 4] *= 1e-5
+    odd = engine.CVResult(ds, x, base.eta)
+    assert abs(odd.theta[4]) > 1e7
+    with pytest.raises(ValueError, match='fy1'):
+        engine.damper_params((), base.eta, odd.theta)
+    assert odd.sse == np.inf and np.isinf(odd.test).all() and np.isinf(odd.train).all()

@@ -1692,7 +1692,10 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     for e in chosen:
         theta = np.zeros(7)
         theta[:len(final.theta)] = final.theta
-        x = engine.design(ds, (e,), final.eta, theta)
+        try:
+            x = engine.design(ds, (e,), final.eta, theta)
+        except ValueError:  # its parameters alone outside the law's ranges: no figure
+            continue
         cause_test[e] = engine.CVResult(ds, x, final.eta).test
     input_kind = sorted({r.input_kind for r in full})[0]
     # A cause named beyond the selection's limit comes after the selection's own.

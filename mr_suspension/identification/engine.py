@@ -19,6 +19,7 @@ through the whole record (held-out blocks included) from the input signals only.
 """
 
 from collections import OrderedDict
+import dataclasses
 import functools
 import math
 import threading
@@ -62,6 +63,10 @@ HYST_FEV = 60  # evaluations of the joint search of a new hysteresis loop's shap
 SHARE = 'hyst_weight'  # the loop's share of the yield force: searched only on request (extra)
 OUTER = -2  # fold label of the untouched outer blocks
 THETA_NAMES = ('f0', 'c0', 'c1', 'fy0', 'fy1')
+# Plausible ranges of theta (f0, c0, c1, fy0, fy1, kg1, kg2), as ExtendedDamperParams declares.
+_THETA_RANGE = np.array([
+    {f.name: f.metadata['range'][:2] for f in dataclasses.fields(ExtendedDamperParams)}[n]
+    for n in THETA_NAMES + ('k_gas1', 'k_gas2')]).T
 GAS_NAMES = ('k_gas1', 'k_gas2')
 LOOP_PARAMS = EFFECT_PARAMS['hysteresis'] + (SHARE,)  # the loop with its share (1 unless freed)
 SPRING_LOOP = ('series_stiffness', 'hysteresis')
@@ -529,6 +534,17 @@ class CVResult:
                        + np.einsum('ki,kij,kj->k', tb, gb, tb))  # held-out SSE per block
         self.train = ((et - ek) - 2 * np.einsum('ki,ki->k', tk, hs[1:])
                       + np.einsum('ki,kij,kj->k', tk, gs[1:], tk))
+        p = th.shape[1]
+        odd = np.any((th < _THETA_RANGE[0, :p]) | (th > _THETA_RANGE[1, :p]), axis=1)
+        if odd.any():
+            # No damper: a linear solution outside the law's plausible ranges (a 3 s record
+            # of a 5e4 N/m spring gave a yield force of 1.2e7 N/A) would be chosen, and the
+            # model then refused when it is built (ExtendedDamperParams).
+            if odd[0]:
+                self.sse = np.inf
+            self.train[odd[1:]] = np.inf
+            self.test[odd[1:]] = np.inf
+            self.test_b[odd[1:][bf]] = np.inf
 
 
 class FitResult:
