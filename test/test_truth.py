@@ -5,7 +5,10 @@ nothing comes from the fitting code (identification) or the package's damper/dri
 """
 
 import ast
+import os
 from pathlib import Path
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -442,7 +445,7 @@ def test_transfer_floor_counts_a_drifting_channels_level_shift():
 
 
 _DIGEST = """
-import hashlib, sys
+import hashlib
 import numpy as np
 from mr_suspension.truth import cases
 h = hashlib.sha1()
@@ -464,9 +467,6 @@ def test_a_case_is_the_same_data_from_a_fresh_compile_and_from_numbas_cache(tmp_
     (1.22 or 2.49 floors on seed-1 case 142). Two processes, one cache folder: the first
     compiles and writes it, the second loads it.
     """
-    import os
-    import subprocess
-    import sys
     env = {**os.environ, 'NUMBA_CACHE_DIR': str(tmp_path / 'numba')}
     out = [subprocess.run([sys.executable, '-c', _DIGEST], env=env, capture_output=True,
                           text=True, timeout=600, check=True).stdout.strip()

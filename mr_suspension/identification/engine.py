@@ -63,11 +63,10 @@ HYST_FEV = 60  # evaluations of the joint search of a new hysteresis loop's shap
 SHARE = 'hyst_weight'  # the loop's share of the yield force: searched only on request (extra)
 OUTER = -2  # fold label of the untouched outer blocks
 THETA_NAMES = ('f0', 'c0', 'c1', 'fy0', 'fy1')
-# Plausible ranges of theta (f0, c0, c1, fy0, fy1, kg1, kg2), as ExtendedDamperParams declares.
-_THETA_RANGE = np.array([
-    {f.name: f.metadata['range'][:2] for f in dataclasses.fields(ExtendedDamperParams)}[n]
-    for n in THETA_NAMES + ('k_gas1', 'k_gas2')]).T
 GAS_NAMES = ('k_gas1', 'k_gas2')
+# Plausible ranges [lo; hi] of theta (f0, c0, c1, fy0, fy1, kg1, kg2): ExtendedDamperParams'.
+_RANGES = {f.name: f.metadata['range'][:2] for f in dataclasses.fields(ExtendedDamperParams)}
+_THETA_RANGE = np.array([_RANGES[n] for n in THETA_NAMES + GAS_NAMES]).T
 LOOP_PARAMS = EFFECT_PARAMS['hysteresis'] + (SHARE,)  # the loop with its share (1 unless freed)
 SPRING_LOOP = ('series_stiffness', 'hysteresis')
 K1_STARTS = (1 / 16, 1 / 8, 1 / 4, 1 / 2, 1, 2, 4)  # k1 factors of the spring-and-loop restarts
