@@ -609,6 +609,36 @@ def test_block_and_fold_sums_of_squares_equal_numpys():
     assert not gg[3].any() and eg[3] == 0.0  # a group without ranges
 
 
+@pytest.mark.parametrize('gas', [False, True])
+def test_regressor_columns_equal_numpys_to_the_bit(gas):
+    """``engine._regressors``: the force law's columns, the same products as numpy's."""
+    rng = np.random.default_rng(11)
+    u, m, y, g, x = (rng.standard_normal(700) * s for s in (0.3, 1.0, 0.9, 2.0, 0.01))
+    cols = [np.ones(700), m * u, m * u * g, y, y * g] + ([x, x ** 2] if gas else [])
+    assert np.array_equal(engine._regressors(u, m, y, g, x, gas), np.column_stack(cols))
+
+
+def test_repeat_scan_equals_the_cumulative_sums_of_numpy():
+    """``noise._best_repeats``: best earlier match per sample, as numpy's cumsum finds it."""
+    rng = np.random.default_rng(12)
+    t = np.arange(1500) / 125.0
+    x = np.sin(2.0 * t) + 1e-3 * rng.standard_normal(t.size)
+    v = 2.0 * np.cos(2.0 * t) + 1e-2 * rng.standard_normal(t.size)
+    i = (np.sin(0.5 * t) > 0) + 1e-3 * rng.standard_normal(t.size)
+    sc = [np.std(a) for a in (x, v, i)]
+    w, best, lag = 25, np.full(t.size, np.inf), np.zeros(t.size, dtype=int)
+    for L in range(7, t.size - w):
+        e = sum(((a[L:] - a[:-L]) / s) ** 2 for a, s in zip((x, v, i), sc))
+        c = np.concatenate([[0.0], np.cumsum(e)])
+        d = (c[w:] - c[:-w]) / w
+        k = np.arange(L + w - 1, t.size)
+        better = d < best[k]
+        best[k[better]], lag[k[better]] = d[better], L
+    got_lag, got_best = noise._best_repeats(x, v, i, 125.0, 0.05, 100.0, 0.2)
+    assert np.array_equal(got_lag, lag) and np.array_equal(got_best, best)
+    assert np.isfinite(best).sum() > 1000  # the comparison covers most samples
+
+
 def test_yield_exponent_is_searched_with_its_smoothing_velocity():
     """Truth: an arctan yield ``(2/pi) atan(w)`` (truth integrator), no other effect.
 

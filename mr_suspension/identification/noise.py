@@ -14,6 +14,7 @@ stay small. No fitted model enters: the floor is what no model of the inputs can
 
 from dataclasses import dataclass, replace
 
+from numba import njit
 import numpy as np
 
 
@@ -78,17 +79,36 @@ def _best_repeats(x, v, i, rate, t_min, t_max, window):
     w = max(1, int(round(window * rate)))
     lo = max(1, int(np.ceil(t_min * rate)))
     hi = min(n - w - 1, int(t_max * rate))
+    return _scan(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(v, dtype=float),
+                 np.ascontiguousarray(i, dtype=float), float(sx), float(sv), float(si), w, lo,
+                 hi)
+
+
+@njit(cache=True, nogil=True)
+def _scan(x, v, i, sx, sv, si, w, lo, hi):
+    """Scan of ``_best_repeats``: one compiled pass per lag, running sums, without the GIL.
+
+    The same sums in the same order as numpy's ``cumsum`` of the squared differences (it
+    held the GIL the diagnosis's threaded fits share for half a second on a 60 s record).
+    """
+    n = x.size
     best = np.full(n, np.inf)
-    lag = np.zeros(n, dtype=int)
+    lag = np.zeros(n, dtype=np.int64)
+    c = np.empty(n + 1)
+    c[0] = 0.0
     for L in range(lo, hi + 1):
-        e = (((x[L:] - x[:-L]) / sx) ** 2 + ((v[L:] - v[:-L]) / sv) ** 2
-             + ((i[L:] - i[:-L]) / si) ** 2)
-        c = np.concatenate([[0.0], np.cumsum(e)])
-        d = (c[w:] - c[:-w]) / w  # window ending at sample L + w - 1 + j
-        k = np.arange(L + w - 1, n)
-        better = d < best[k]
-        best[k[better]] = d[better]
-        lag[k[better]] = L
+        m = n - L
+        for j in range(m):
+            a = (x[L + j] - x[j]) / sx
+            b = (v[L + j] - v[j]) / sv
+            e = (i[L + j] - i[j]) / si
+            c[j + 1] = c[j] + (a * a + b * b + e * e)
+        for j in range(m - w + 1):
+            d = (c[j + w] - c[j]) / w  # window ending at sample L + w - 1 + j
+            k = L + w - 1 + j
+            if d < best[k]:
+                best[k] = d
+                lag[k] = L
     return lag, best
 
 
