@@ -108,6 +108,27 @@ def test_force_lead_below_a_decimated_sample_is_judged_at_the_full_rate():
     assert est.score(_record(unseen.columns)) < 4.0 * cases.transfer_floor(case, unseen)
 
 
+def test_force_lead_behind_a_dead_time_and_a_series_spring_is_found_along_their_valley():
+    """A 0.8 ms force lead, an 8.4 ms dead time and a 2.2e6 N/m series spring (truth).
+
+    The lead makes the current's force come 0.8 ms early and the motion's too: the selection
+    took 8 ms of dead time, no lead and a 10 % stiffer spring to make up for it (2.26
+    floors on an unseen record). The delay judged at the full rate on top of that, the
+    parent held, gains nothing; from restarts along the dead-time / delay valley it is found.
+    """
+    case = cases.make_case(14, ('current_delay', 'series_stiffness'),
+                           sensor_faults=('channel_delay',), duration=12.0, strength=0.5)
+    spec, truth = case.sensor['spec'], case.truth
+    assert spec.force_delay < -0.5e-3 and truth.dead_time > 5e-3
+    est = diagnose.Diagnosis()
+    res = est.fit([_record(case.columns)])
+    assert {'channel_delay', 'current_delay', 'series_stiffness'} <= set(res.causes)
+    assert res.delay == pytest.approx(spec.force_delay, abs=0.25e-3)
+    assert res.final.eta['k_series'] == pytest.approx(truth.k_series, rel=0.05)
+    unseen = case.unseen()
+    assert est.score(_record(unseen.columns)) < 1.5 * cases.transfer_floor(case, unseen)
+
+
 def test_delay_seen_only_at_the_full_rate_comes_before_the_physics_it_hid():
     """Benchmark seed 1 case 66: no damper effect, the force 0.63 ms behind (stamps rounded).
 
