@@ -129,6 +129,45 @@ def test_force_lead_behind_a_dead_time_and_a_series_spring_is_found_along_their_
     assert est.score(_record(unseen.columns)) < 1.5 * cases.transfer_floor(case, unseen)
 
 
+def test_static_yield_shape_replaces_a_loop_named_beside_a_soft_spring():
+    """Benchmark seed 1 case 297: an algebraic damper behind an 8.3e4 N/m spring, no velocity.
+
+    The separable fit named the spring and a pre-yield loop (5.8 floors on an unseen
+    record); the spring and the static yield shape fitted on the simulated error win on the
+    inner folds and reach the truth's stiffness.
+    """
+    case = cases.make_case(100300, ('series_stiffness',), sensor_faults=None, duration=12.0,
+                           measured_current=None)
+    assert case.truth.shape == 'algebraic' and case.truth.k_series < 1e5
+    est = diagnose.Diagnosis()
+    res = est.fit([_record(case.columns)])
+    assert set(res.physical_causes) == {'series_stiffness', 'yield_shape'}
+    assert res.final.eta['k_series'] == pytest.approx(case.truth.k_series, rel=0.05)
+    unseen = case.unseen()
+    assert est.score(_record(unseen.columns)) < 1.5 * cases.transfer_floor(case, unseen)
+
+
+def test_output_error_fit_recovers_a_soft_spring_and_the_yield_shape():
+    """Truth integrator, algebraic yield behind a soft spring; the fit starts 40 % off."""
+    case = cases.make_case(7, ('series_stiffness',), sensor_faults=(), duration=4.0,
+                           shape='algebraic', strength=0.9, measured_current=False,
+                           sensor_clean=True)
+    tr = case.truth
+    ds = engine.Dataset([_record(case.columns)], n_folds=5)
+    effects = ('series_stiffness', 'yield_shape')
+    eta = {**engine.neutral_eta(), 'k_series': 1.4 * tr.k_series, 'v_y': 0.6 * tr.v_y,
+           'yield_n': 1.5}
+    theta = np.array([tr.f0, 0.7 * tr.c0, 0.7 * tr.c1, 1.3 * tr.fy0, 1.3 * tr.fy1])
+    _, _, cost0 = engine.output_error_fit(ds, effects, eta, theta, (), 10 ** 5, 0)
+    got, th, cost = engine.output_error_fit(ds, effects, eta, theta,
+                                            ('k_series', 'v_y', 'yield_n'), 10 ** 5, 100)
+    assert cost < 0.01 * cost0
+    assert got['k_series'] == pytest.approx(tr.k_series, rel=0.05)
+    assert got['v_y'] == pytest.approx(tr.v_y, rel=0.1)
+    assert got['yield_n'] == pytest.approx(2.0, rel=0.1)  # the truth's w / sqrt(1 + w^2)
+    assert th[1] == pytest.approx(tr.c0, rel=0.05) and th[3] == pytest.approx(tr.fy0, rel=0.1)
+
+
 def test_delay_seen_only_at_the_full_rate_comes_before_the_physics_it_hid():
     """Benchmark seed 1 case 66: no damper effect, the force 0.63 ms behind (stamps rounded).
 

@@ -657,26 +657,47 @@ def output_error_theta(ds, effects, eta, theta0, n_max=OE_SAMPLES, max_nfev=OE_N
     the separable iteration, which then uses all the data). Returns theta (``theta0`` if the
     fit fails).
     """
+    return output_error_fit(ds, effects, eta, theta0, (), n_max, max_nfev)[1]
+
+
+def output_error_fit(ds, effects, eta, theta0, names, n_max, max_nfev):
+    """Minimise the *simulated* force error over theta and the positive ``eta[names]``.
+
+    ``output_error_theta`` with ``names`` (e.g. ``k_series``, ``v_y``, ``yield_n``) fitted
+    jointly, on log scales: where the separable iteration's objective has its minimum away
+    from the simulation's (a soft series spring), the output error itself is minimised.
+    Inner-fold samples only (``_window``). Returns ``(eta, theta, cost)``, the cost half the
+    sum of squared scaled errors (the start if the fit fails or does not lower it).
+    """
     p = len(theta0)
+    names = tuple(names)
     win = _window(ds, n_max)
-    dyn = current_dynamics(effects, eta)
     s_mat = _ends_map(p, ds.i_max)
     inv = np.linalg.inv(s_mat)
-    i_f = [field_current(r.i_in[:n], r.dt, dyn['dead_time'], dyn['tau_rise'], dyn['tau_fall'])
-           for r, n, _ in win]
     scale = max(ds.f_ref, 1.0)
     n_used = sum(int(m.sum()) for _, _, m in win)
+    i_cache = {}
+
+    def unpack(z):
+        e = dict(eta)
+        for n, val in zip(names, z[p:]):
+            e[n] = float(math.exp(val))
+        return e, s_mat @ z[:p]
 
     def resid(z):
-        th = s_mat @ z
+        e, th = unpack(z)
         try:
-            pa = damper_params(effects, eta, th).to_array()
+            pa = damper_params(effects, e, th).to_array()
         except ValueError:
             return np.full(n_used, 10.0)
+        dyn = current_dynamics(effects, e)
+        key = (dyn['dead_time'], dyn['tau_rise'], dyn['tau_fall'])
+        if key not in i_cache:
+            i_cache[key] = [field_current(r.i_in[:n], r.dt, *key) for r, n, _ in win]
+        delay, f_ch = channel_of(effects, e)
         out = []
-        for (r, n, m), i in zip(win, i_f):
+        for (r, n, m), i in zip(win, i_cache[key]):
             f = simulate_extended(pa, r.displacement[:n], r.velocity[:n], i, r.dt)[0]
-            delay, f_ch = channel_of(effects, eta)
             if delay or f_ch:
                 f = apply_channel(f[:, None], r.dt, delay, f_ch)[:, 0]
             out.append((f - r.force[:n])[m] / scale)
@@ -690,14 +711,20 @@ def output_error_theta(ds, effects, eta, theta0, n_max=OE_SAMPLES, max_nfev=OE_N
     xs = np.maximum(np.abs(z0), 0.01 * scale / max(ds.v_ref, 1e-6))
     xs[0] = max(abs(z0[0]), 0.01 * scale)
     xs[3:5] = np.maximum(np.abs(z0[3:5]), 0.01 * scale)
+    z0 = np.concatenate([z0, [math.log(eta[n]) for n in names]])
+    lo = np.concatenate([lo, np.full(len(names), -np.inf)])
+    xs = np.concatenate([xs, np.full(len(names), 0.1)])
+    r0 = resid(z0)
+    start = (dict(eta), np.asarray(theta0, dtype=float), 0.5 * float(r0 @ r0))
     try:
-        sol = optimize.least_squares(resid, z0, bounds=(lo, np.full(p, np.inf)), x_scale=xs,
-                                     max_nfev=max_nfev, ftol=1e-4, xtol=1e-6)
+        sol = optimize.least_squares(resid, z0, bounds=(lo, np.full(z0.size, np.inf)),
+                                     x_scale=xs, max_nfev=max_nfev, ftol=1e-4, xtol=1e-6)
     except (ValueError, np.linalg.LinAlgError):
-        return np.asarray(theta0, dtype=float)
-    if not sol.cost < 0.5 * float(resid(z0) @ resid(z0)):
-        return np.asarray(theta0, dtype=float)
-    return s_mat @ sol.x
+        return start
+    if not sol.cost < start[2]:
+        return start
+    e, th = unpack(sol.x)
+    return e, th, float(sol.cost)
 
 
 def _search_order(effects, new):
