@@ -147,6 +147,24 @@ def test_static_yield_shape_replaces_a_loop_named_beside_a_soft_spring():
     assert est.score(_record(unseen.columns)) < 1.5 * cases.transfer_floor(case, unseen)
 
 
+def test_a_loop_named_without_a_spring_is_judged_against_one():
+    """Benchmark seed 0 case 225: an arctan damper behind a 5e7 N/m spring.
+
+    Named a 30 um loop carrying 7 % of the yield force and the static shape (4.09 floors on
+    an unseen record); a spring started at the loop's pre-yield stiffness, fitted with the
+    shape on the simulated error, wins on the inner folds.
+    """
+    case = cases.make_case(225, ('series_stiffness',), sensor_faults=None, duration=12.0,
+                           measured_current=None)
+    assert case.truth.shape == 'arctan'
+    est = diagnose.Diagnosis()
+    res = est.fit([_record(case.columns)])
+    assert set(res.physical_causes) == {'series_stiffness', 'yield_shape'}
+    assert res.final.eta['k_series'] == pytest.approx(case.truth.k_series, rel=0.15)
+    unseen = case.unseen()
+    assert est.score(_record(unseen.columns)) < 1.5 * cases.transfer_floor(case, unseen)
+
+
 def test_output_error_fit_recovers_a_soft_spring_and_the_yield_shape():
     """Truth integrator, algebraic yield behind a soft spring; the fit starts 40 % off."""
     case = cases.make_case(7, ('series_stiffness',), sensor_faults=(), duration=4.0,
