@@ -52,6 +52,11 @@ PERIODIC = 0.9  # velocity correlation one period later: the record repeats one 
 T_FINE = 3.0  # fold t the extra full-rate test needs (after the selection: a stricter bar)
 G_FINE = 0.1  # held-out gain at which a full-rate candidate needs only T_MIN (see ``_pays``)
 RESCREEN_T = T_MIN  # fold t of a physical cause screened again after a full-rate timing
+# The static yield shape judged in place of a loop by output error (``_spring_loop_as_shape``):
+# its exponent's start (w / sqrt(1 + w^2)), the fit's inner-fold samples and evaluations.
+SHAPE_START_N = 2.0
+OE_POLISH_SAMPLES = 30000
+OE_POLISH_NFEV = 60
 JOBS = max(1, min(4, os.cpu_count() or 1))  # threads for independent fits (kernels drop the GIL)
 # Candidate fits that take longest, started first on the threads (``_parallel``): the loop
 # (Bouc-Wen kernel, fitted twice where its share is testable), the yield shape (a grid and a
@@ -480,11 +485,6 @@ def _choose(cands, parent, t_min=T_MIN):
         if r >= CORR_AMBIG:
             ambiguous.append(pair)
     return best, ambiguous, stats
-
-
-SHAPE_START_N = 2.0  # yield_shape's exponent where the output-error fit starts (w / sqrt(1 + w^2))
-OE_POLISH_SAMPLES = 30000  # inner-fold samples of that fit
-OE_POLISH_NFEV = 60
 
 
 def _parallel(jobs, tick=None):
