@@ -55,8 +55,8 @@ def test_step_by_step_equals_fitted_prediction():
                                        duration=3.0)
     params = ExtendedDamperParams(f0=5.0, c0=800.0, c1=1200.0, fy0=90.0, fy1=600.0,
                                   v_y=0.01, i_sat=0.8, x_h=4e-4, k_series=1.5e6,
-                                  k_gas1=5e3, k_gas2=2e5, kappa=2e-5, tau_thermal=300.0,
-                                  rho=0.15)
+                                  k_gas1=5e3, k_gas2=2e5, k_gas3=-4e6, kappa=2e-5,
+                                  tau_thermal=300.0, rho=0.15)
     dyn = {'dead_time': 0.004, 'tau_rise': 0.003, 'tau_fall': 0.02}
     model = model_io.model_dict(params, dyn, ['all'], 'current_command')
     fit_pred = model_io.predict(model, rec)
@@ -76,7 +76,7 @@ def test_step_by_step_equals_fitted_prediction():
     eta = {'v_y': 0.01, 'dead_time': 0.004, 'tau_lag': 0.0, 'tau_rise': 0.003,
            'tau_fall': 0.02, 'i_sat': 0.8, 'x_h': 4e-4, 'k_series': 1.5e6, 'kappa': 2e-5,
            'tau_thermal': 300.0, 'rho': 0.15}
-    theta = np.array([5.0, 800.0, 1200.0, 90.0, 600.0, 5e3, 2e5])
+    theta = np.array([5.0, 800.0, 1200.0, 90.0, 600.0, 5e3, 2e5, -4e6])
     ds = engine.Dataset([rec])
     x = engine.design(ds, effects, eta, theta)
     np.testing.assert_allclose(x @ theta, fit_pred, rtol=1e-9, atol=1e-6)

@@ -678,7 +678,7 @@ def test_regressor_columns_equal_numpys_to_the_bit(gas):
     """``engine._regressors``: the force law's columns, the same products as numpy's."""
     rng = np.random.default_rng(11)
     u, m, y, g, x = (rng.standard_normal(700) * s for s in (0.3, 1.0, 0.9, 2.0, 0.01))
-    cols = [np.ones(700), m * u, m * u * g, y, y * g] + ([x, x ** 2] if gas else [])
+    cols = [np.ones(700), m * u, m * u * g, y, y * g] + ([x, x ** 2, x ** 2 * x] if gas else [])
     assert np.array_equal(engine._regressors(u, m, y, g, x, gas), np.column_stack(cols))
 
 

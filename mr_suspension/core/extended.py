@@ -2,7 +2,7 @@
 
 Force (stroke ``x``, + = extension; stroke rate ``v``; field current ``i``)::
 
-    F   = F0 + kg1 x + kg2 x^2 + F_d(u)                   (gas spring k2 in parallel, seed 000)
+    F   = F0 + kg1 x + kg2 x^2 + kg3 x^3 + F_d(u)         (gas spring k2 in parallel, seed 000)
     F_d = M_th [c(i) u A(u) + Fy(i) y (1 + rho y)]        (damping element, seed 003 eq. 5.2)
     c(i) = c0 + c1 g(i),  Fy(i) = fy0 + fy1 g(i)          (the field drives both)
     g(i) = i, or i_s tanh(w), or i_s w / (1 + |w|^m)^(1/m), w = i / i_s   (saturation, m = sat_n;
@@ -23,7 +23,7 @@ Backward Euler, used before, advances the spring's force by half a step
 (``(1 - z^-1) / dt ~ s exp(-s dt / 2)``), which a fit read as a force-channel delay of half a
 sample on records with a soft spring; BDF2 is second order and, unlike the trapezoidal rule,
 damps stiff springs instead of ringing. Every effect is off at its
-neutral value: ``i_s = 0``, ``x_h = 0``, ``k1 = 0``, ``kg1 = kg2 = 0``, ``kappa = 0``,
+neutral value: ``i_s = 0``, ``x_h = 0``, ``k1 = 0``, ``kg1 = kg2 = kg3 = 0``, ``kappa = 0``,
 ``rho = 0``. The hysteretic state is the normalised Bouc-Wen state (Wen 1976, Spencer et al.
 1997: ``|z| <= 1``, pre-yield length ``x_h``, exponent ``n_h >= 1``, ``r_h = gamma / (beta +
 gamma)`` shapes the unloading branch); ``n_h = 1, r_h = 0, w_h = 1`` is the Dahl model
@@ -62,8 +62,8 @@ from mr_suspension.core.validation import as_number, build, check_declared, para
 EXT_NSTATE = 10
 S_Z, S_FD, S_E, S_U, S_Y, S_M, S_G, S_DF, S_FD2, S_DTP = range(10)
 (P_F0, P_C0, P_C1, P_FY0, P_FY1, P_VY, P_ISAT, P_XH, P_K1, P_KG1, P_KG2, P_KAPPA, P_TAUTH,
- P_RHO, P_YN, P_HW, P_HN, P_HR, P_SN) = range(19)
-P_TAB = 19  # Bouc-Wen table (bw_table) appended to the parameter array: [h_xi, zeta.., g..]
+ P_RHO, P_YN, P_HW, P_HN, P_HR, P_SN, P_KG3) = range(20)
+P_TAB = 20  # Bouc-Wen table (bw_table) appended to the parameter array: [h_xi, zeta.., g..]
 BW_NT = 512
 RHO_MAX = 0.5
 
@@ -75,11 +75,11 @@ class ExtendedDamperParams:
     ``f0`` [N], ``c0`` [N s/m], ``c1`` [N s/(m A)], ``fy0`` [N], ``fy1`` [N/A], ``v_y`` [m/s]
     smooth-Bingham baseline; ``i_sat`` [A] field saturation (0 = off), ``sat_n`` [-] the
     exponent of its curve ``w / (1 + |w|^m)^(1/m)`` instead of ``tanh(w)`` (0 = tanh; 1 =
-    Frohlich-Kennelly); ``x_h`` [m] Dahl
-    pre-yield length (0 = off, smooth tanh); ``k_series`` [N/m] series stiffness (0 = rigid);
-    ``k_gas1`` [N/m], ``k_gas2`` [N/m^2] gas spring; ``kappa`` [1/J] fade per stored heat
-    (0 = off), ``tau_thermal`` [s] cooling time constant; ``rho`` [-] rebound/compression
-    asymmetry, ``|rho| <= 0.5``; ``yield_n`` [-] exponent of the algebraic yield sigmoid
+    Frohlich-Kennelly); ``x_h`` [m] Dahl pre-yield length (0 = off, smooth tanh);
+    ``k_series`` [N/m] series stiffness (0 = rigid); ``k_gas1`` [N/m], ``k_gas2`` [N/m^2],
+    ``k_gas3`` [N/m^3] gas spring; ``kappa`` [1/J] fade per stored heat (0 = off),
+    ``tau_thermal`` [s] cooling time constant; ``rho`` [-] rebound/compression asymmetry,
+    ``|rho| <= 0.5``; ``yield_n`` [-] exponent of the algebraic yield sigmoid
     ``w / (1 + |w|^n)^(1/n)`` instead of ``tanh(w)`` (0 = off: n = 2 is the algebraic sigmoid,
     n near 1 a slow arctan-like tail, large n a sharp Bingham corner); ``hyst_weight`` [-]
     share ``w_h`` of the yield force carried by the hysteretic (Bouc-Wen) state, ``hyst_n``
@@ -112,6 +112,8 @@ class ExtendedDamperParams:
                           required=False)
     sat_n: float = param(0.0, 0.3, 20.0, '', 'magnetisation curve exponent', off=0.0,
                          required=False)
+    k_gas3: float = param(0.0, -1.0e15, 1.0e15, 'N/m^3', 'gas spring cubic term',
+                          required=False)
 
     law = 'extended'
 
@@ -405,7 +407,7 @@ def extended_force(p, s, x, v, i, dt):
         u = v
         fd, dfd, y, m, g, zh = _element(p, s, u, i, dt)
         tangent = dfd if dfd > 0.0 else 0.0
-    force = p[P_F0] + p[P_KG1] * x + p[P_KG2] * x * x + fd
+    force = p[P_F0] + (p[P_KG1] + (p[P_KG2] + p[P_KG3] * x) * x) * x + fd
     if p[P_XH] > 0.0:
         s[S_Z] = zh
     s[S_FD2] = s[S_FD]
@@ -440,14 +442,14 @@ def simulate_extended(p, x, v, i, dt):
     return f, u, y, m, g
 
 
-_FORCE_ONLY = np.array([P_F0, P_C0, P_C1, P_FY0, P_FY1, P_KG1, P_KG2, P_TAUTH])
+_FORCE_ONLY = np.array([P_F0, P_C0, P_C1, P_FY0, P_FY1, P_KG1, P_KG2, P_KG3, P_TAUTH])
 
 
 def trajectory_key(p):
     """Bytes of ``p`` that the ``u, Y, M, g`` of ``simulate_extended`` depend on.
 
     Without series stiffness and thermal fade ``u = v`` and ``M_th = 1`` (module docstring),
-    so they do not depend on ``F0, c0, c1, Fy0, Fy1, kg1, kg2`` (nor on ``tau_th``): those
+    so they do not depend on ``F0, c0, c1, Fy0, Fy1, kg1, kg2, kg3`` (nor on ``tau_th``): those
     slots are zeroed. With either effect the force feeds the state back: all of ``p``.
     """
     if p[P_K1] > 0.0 or p[P_KAPPA] > 0.0:

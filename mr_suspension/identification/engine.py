@@ -63,10 +63,11 @@ HYST_FEV = 60  # evaluations of the joint search of a new hysteresis loop's shap
 SHARE = 'hyst_weight'  # the loop's share of the yield force: searched only on request (extra)
 OUTER = -2  # fold label of the untouched outer blocks
 THETA_NAMES = ('f0', 'c0', 'c1', 'fy0', 'fy1')
-GAS_NAMES = ('k_gas1', 'k_gas2')
-# Plausible ranges [lo; hi] of theta (f0, c0, c1, fy0, fy1, kg1, kg2): ExtendedDamperParams'.
+GAS_NAMES = ('k_gas1', 'k_gas2', 'k_gas3')
+# Plausible ranges [lo; hi] of theta (f0, c0, c1, fy0, fy1, kg1, kg2, kg3): ExtendedDamperParams'.
 _RANGES = {f.name: f.metadata['range'][:2] for f in dataclasses.fields(ExtendedDamperParams)}
 _THETA_RANGE = np.array([_RANGES[n] for n in THETA_NAMES + GAS_NAMES]).T
+N_THETA = len(THETA_NAMES + GAS_NAMES)
 LOOP_PARAMS = EFFECT_PARAMS['hysteresis'] + (SHARE,)  # the loop with its share (1 unless freed)
 SPRING_LOOP = ('series_stiffness', 'hysteresis')
 K1_STARTS = (1 / 16, 1 / 8, 1 / 4, 1 / 2, 1, 2, 4)  # k1 factors of the spring-and-loop restarts
@@ -273,7 +274,7 @@ def damper_params(effects, eta, theta):
     d = dict(zip(THETA_NAMES, theta[:5]))
     d['v_y'] = eta['v_y']
     if 'gas_spring' in effects:
-        d['k_gas1'], d['k_gas2'] = theta[5], theta[6]
+        d['k_gas1'], d['k_gas2'], d['k_gas3'] = theta[5], theta[6], theta[7]
     if 'current_saturation' in effects:
         d['i_sat'] = eta['i_sat']
         d['sat_n'] = eta.get('sat_n', 0.0)
@@ -381,14 +382,14 @@ def element_run(ds, j, p, dyn):
 
 @njit(cache=True, nogil=True)
 def _regressors(u, m, y, g, disp, gas):
-    """Columns ``[1, M u, M u g, Y, Y g (, x, x^2)]`` of ``F_d = M c u + Fy Y`` (core.extended).
+    """Columns ``[1, M u, M u g, Y, Y g (, x, x^2, x^3)]`` of ``F_d = M c u + Fy Y``.
 
     ``Y`` carries its own multiplier; ``g`` is the field (saturated current); the gas spring
-    adds ``x`` and ``x^2``. One compiled pass without the GIL (numpy's products and
+    adds ``x``, ``x^2`` and ``x^3``. One compiled pass without the GIL (numpy's products and
     ``column_stack`` held it for a tenth of a diagnosis), the same products to the bit.
     """
     n = u.shape[0]
-    x = np.empty((n, 7 if gas else 5))
+    x = np.empty((n, 8 if gas else 5))
     for k in range(n):
         mu = m[k] * u[k]
         x[k, 0] = 1.0
@@ -399,12 +400,18 @@ def _regressors(u, m, y, g, disp, gas):
         if gas:
             x[k, 5] = disp[k]
             x[k, 6] = disp[k] * disp[k]
+            x[k, 7] = x[k, 6] * disp[k]
     return x
+
+
+def n_theta(effects):
+    """Count the linear parameters of a model: theta, and the gas spring's with it."""
+    return N_THETA if 'gas_spring' in effects else len(THETA_NAMES)
 
 
 def design(ds, effects, eta, theta_prev):
     """Regressor matrix ``X`` (all records stacked) of a model at ``eta``."""
-    theta = np.zeros(7)
+    theta = np.zeros(N_THETA)
     theta[:len(theta_prev)] = theta_prev
     params = damper_params(effects, eta, theta)
     dyn = current_dynamics(effects, eta)
@@ -415,7 +422,7 @@ def design(ds, effects, eta, theta_prev):
         i_f, u, y, m, g = element_run(ds, j, p, dyn)
         if not np.max(np.abs(u)) <= 100.0 * np.max(np.abs(r.velocity)) + 1.0:
             # The element state ran away (a non-monotone element at this theta): no model.
-            return np.full((ds.force.size, 7 if gas else 5), np.nan)
+            return np.full((ds.force.size, n_theta(effects)), np.nan)
         x = _regressors(u, m, y, g, r.displacement, gas)
         delay, f_ch = channel_of(effects, eta)
         if delay or f_ch:
@@ -622,7 +629,7 @@ class FitResult:
     def effect_params(self, effect):
         """Parameters that define one effect in this fit (SI)."""
         if effect == 'gas_spring':
-            return {'k_gas1': float(self.theta[5]), 'k_gas2': float(self.theta[6])}
+            return {n: float(v) for n, v in zip(GAS_NAMES, self.theta[5:])}
         if effect == 'current_lag':
             return {'tau': float(self.eta['tau_lag'])}
         if effect == 'channel_delay':
@@ -784,7 +791,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
     if start_eta:
         eta.update(start_eta)
     new = tuple(effects) if new is None else tuple(new)
-    p = 7 if 'gas_spring' in effects else 5
+    p = n_theta(effects)
     theta = np.zeros(p)
     if start_theta is not None:
         theta[:min(p, len(start_theta))] = start_theta[:p]

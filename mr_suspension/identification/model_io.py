@@ -107,7 +107,8 @@ def warn_outside(rng, record, params):
 
     The stroke is judged only when the model carries a gas spring (``outside_range``).
     """
-    msg = outside_range(rng, record, stroke=bool(params.k_gas1 or params.k_gas2))[1]
+    gas = params.k_gas1 or params.k_gas2 or params.k_gas3
+    msg = outside_range(rng, record, stroke=bool(gas))[1]
     if msg:
         warnings.warn(msg)
 

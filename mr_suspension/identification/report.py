@@ -40,12 +40,6 @@ def _nrmse(mse, std):
     return float(np.sqrt(mse) / std)
 
 
-def _pad(theta):
-    out = np.zeros(7)
-    out[:len(theta)] = theta
-    return out
-
-
 def extended_text(effects):
     """One-line description of an extended model."""
     if not effects:
