@@ -252,8 +252,13 @@ class Dataset:
 
 
 def neutral_eta():
-    """Nonlinear parameters with every effect off (v_y set by the search)."""
-    return {'v_y': 0.01, 'dead_time': 0.0, 'tau_lag': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0,
+    """Nonlinear parameters with every effect off (v_y set by the search).
+
+    ``gas_cubic`` (0 or 1) frees the gas spring's cubic term ``kg3`` (a nested upgrade of
+    ``gas_spring``, judged after the selection: ``diagnose._gas_cubic``).
+    """
+    return {'gas_cubic': 0.0,
+            'v_y': 0.01, 'dead_time': 0.0, 'tau_lag': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0,
             'i_sat': 0.0, 'sat_n': 0.0, 'x_h': 0.0, 'k_series': 0.0, 'kappa': 0.0,
             'tau_thermal': 600.0, 'rho': 0.0, 'delay': 0.0, 'yield_n': 0.0, 'hyst_weight': 1.0,
             'hyst_n': 1.0, 'hyst_r': 0.0, 'f_ch': 0.0}
@@ -274,7 +279,8 @@ def damper_params(effects, eta, theta):
     d = dict(zip(THETA_NAMES, theta[:5]))
     d['v_y'] = eta['v_y']
     if 'gas_spring' in effects:
-        d['k_gas1'], d['k_gas2'], d['k_gas3'] = theta[5], theta[6], theta[7]
+        d['k_gas1'], d['k_gas2'] = theta[5], theta[6]
+        d['k_gas3'] = theta[7] if eta.get('gas_cubic') else 0.0
     if 'current_saturation' in effects:
         d['i_sat'] = eta['i_sat']
         d['sat_n'] = eta.get('sat_n', 0.0)
@@ -424,6 +430,8 @@ def design(ds, effects, eta, theta_prev):
             # The element state ran away (a non-monotone element at this theta): no model.
             return np.full((ds.force.size, n_theta(effects)), np.nan)
         x = _regressors(u, m, y, g, r.displacement, gas)
+        if gas and not eta.get('gas_cubic'):
+            x[:, 7] = 0.0  # the cubic term is not freed: its coefficient solves to 0
         delay, f_ch = channel_of(effects, eta)
         if delay or f_ch:
             x = apply_channel(x, r.dt, delay, f_ch)
