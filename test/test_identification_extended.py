@@ -75,7 +75,7 @@ def test_step_by_step_equals_fitted_prediction():
     effects = tuple(e for e in engine.EFFECTS if e not in ('current_lag', 'yield_shape'))
     eta = {'v_y': 0.01, 'dead_time': 0.004, 'tau_lag': 0.0, 'tau_rise': 0.003,
            'tau_fall': 0.02, 'i_sat': 0.8, 'x_h': 4e-4, 'k_series': 1.5e6, 'kappa': 2e-5,
-           'tau_thermal': 300.0, 'rho': 0.15}
+           'tau_thermal': 300.0, 'rho': 0.15, 'gas_cubic': 1.0}
     theta = np.array([5.0, 800.0, 1200.0, 90.0, 600.0, 5e3, 2e5, -4e6])
     ds = engine.Dataset([rec])
     x = engine.design(ds, effects, eta, theta)
