@@ -1442,9 +1442,8 @@ def _spring_loop_as_shape(ds, base, final, chosen, physics, tick):
     def rival(sw):
         effects = tuple(e for e in final.effects if e != 'hysteresis')
         effects += tuple(e for e in sw if e not in effects)
-        theta0 = np.zeros(engine.n_theta(effects))
-        theta0[:len(final.theta)] = final.theta[:theta0.size]
-        e, theta, _ = engine.output_error_fit(ds, effects, eta, theta0,
+        e, theta, _ = engine.output_error_fit(ds, effects, eta,
+                                              engine.theta_for(effects, final.theta),
                                               ('k_series', 'v_y', 'yield_n'),
                                               OE_POLISH_SAMPLES, OE_POLISH_NFEV)
         x = engine.design(ds, effects, e, theta)
@@ -1497,7 +1496,8 @@ def _gas_cubic(ds, final, tick):
     tick('gas spring: cubic term')
     ok, pooled, t, ta, _, _ = _pays(child, final, T_FINE)
     entry = {'gain_mse': round(pooled, 4), 't': round(t, 2), 't_active': round(ta, 2),
-             'accepted': bool(ok), 'k_gas3': round(float(child.theta[7]), 1)}
+             'accepted': bool(ok),
+             'k_gas3': round(child.effect_params('gas_spring')['k_gas3'], 1)}
     step = {'stage': 'gas spring cubic term (nested)', 'parent': list(final.effects),
             'candidates': {'gas_cubic': entry}}
     return (child if ok else final), step
@@ -1838,10 +1838,8 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     # fit, linear parameters refitted per fold (one regressor evaluation each).
     cause_test = {}
     for e in chosen:
-        theta = np.zeros(engine.N_THETA)
-        theta[:len(final.theta)] = final.theta
-        try:
-            x = engine.design(ds, (e,), final.eta, theta)
+        try:  # ``design`` pads the final theta; each effect reads its own part
+            x = engine.design(ds, (e,), final.eta, final.theta)
         except ValueError:  # its parameters alone outside the law's ranges: no figure
             continue
         cause_test[e] = engine.CVResult(ds, x, final.eta).test

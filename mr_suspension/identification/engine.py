@@ -415,6 +415,14 @@ def n_theta(effects):
     return N_THETA if 'gas_spring' in effects else len(THETA_NAMES)
 
 
+def theta_for(effects, theta=None):
+    """Return ``theta`` cut or zero-padded to the ``n_theta(effects)`` of a model."""
+    out = np.zeros(n_theta(effects))
+    if theta is not None:
+        out[:min(out.size, len(theta))] = theta[:out.size]
+    return out
+
+
 def design(ds, effects, eta, theta_prev):
     """Regressor matrix ``X`` (all records stacked) of a model at ``eta``."""
     theta = np.zeros(N_THETA)
@@ -799,10 +807,7 @@ def fit(ds, effects, start_eta=None, start_theta=None, new=None, sweeps=None, jo
     if start_eta:
         eta.update(start_eta)
     new = tuple(effects) if new is None else tuple(new)
-    p = n_theta(effects)
-    theta = np.zeros(p)
-    if start_theta is not None:
-        theta[:min(p, len(start_theta))] = start_theta[:p]
+    theta = theta_for(effects, start_theta)
     force_dep = any(e in FORCE_DEPENDENT for e in effects)
     visited = []
     cache = {}
