@@ -33,6 +33,25 @@ def test_params_validation_and_round_trip():
         ExtendedDamperParams.from_dict({'no_such': 1.0})
 
 
+def test_gas_spring_cubic_term_checks_and_old_model_files():
+    """``k_gas3``: old model files load (0), implausible values are refused.
+
+    The force law adds exactly ``kg1 x + kg2 x^2 + kg3 x^3`` (written here) to the damper's.
+    """
+    old = {k: v for k, v in ExtendedDamperParams().to_dict().items() if k != 'k_gas3'}
+    assert ExtendedDamperParams.from_dict(old, source='old_model.json').k_gas3 == 0.0
+    for bad in (float('nan'), 1e20, 'abc'):
+        with pytest.raises(ValueError, match='k_gas3'):
+            ExtendedDamperParams.from_dict({**old, 'k_gas3': bad})
+    x, v, i, dt = _signals(400)
+    plain = ExtendedDamperParams(v_y=0.01)
+    gas = ExtendedDamperParams(v_y=0.01, k_gas1=4e3, k_gas2=-2e5, k_gas3=3e7)
+    f0 = simulate_extended(plain.to_array(), x, v, i, dt)[0]
+    f1 = simulate_extended(gas.to_array(), x, v, i, dt)[0]
+    np.testing.assert_allclose(f1 - f0, 4e3 * x - 2e5 * x ** 2 + 3e7 * x ** 3,
+                               rtol=1e-9, atol=1e-9)
+
+
 def test_neutral_values_reduce_to_smooth_bingham():
     p = ExtendedDamperParams(f0=12.0, c0=900.0, c1=1500.0, fy0=80.0, fy1=700.0, v_y=0.012)
     bp = damper.BinghamParams(f0=12.0, c0=900.0, c1=1500.0, fc0=80.0, fc1=700.0, v_y=0.012)
