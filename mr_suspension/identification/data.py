@@ -172,12 +172,13 @@ def _ici_text(cuts, mask):
             'samples)')
 
 
-def _lpa_text(sd, mask):
-    """Describe a directional LPA-ICI estimate (``sensors.lpa_ici``) by its noise over ``mask``."""
-    lo, med, hi = 1e3 * np.percentile(sd[mask & np.isfinite(sd)], [5, 50, 95])
-    return (f'local quadratic fits over past, centred and future windows as long as the data '
-            f'allow (intersection of confidence intervals), fused by inverse variance: noise '
-            f'{lo:.3g} / {med:.3g} / {hi:.3g} mm/s (5 / 50 / 95 % of samples)')
+def _lpa_text(share, mask):
+    """Describe ``sensors.directional_velocity``'s estimate by the local fits' weight."""
+    most = 100.0 * float(np.mean(share[mask] > 0.5))
+    return ('the ladder of zero-phase low-passes and local quadratic fits over past, centred '
+            'and future windows, each as long as the data allow (intersection of confidence '
+            f'intervals), fused by inverse variance (the local fits weigh most on {most:.3g} % '
+            'of samples)')
 
 
 def _derived_pred(x, dt, cut, opts, vsrc):
@@ -442,17 +443,16 @@ def build_record(name, cols, opts=None, meta=None):
                 if vcut is not None and removed > 1e-3 * vrms:
                     noise = sensors.measured_velocity_noise(x, v_raw, dt, fc)
                     pred_text = None
-                    v_fit = sensors.smooth_velocity(v, dt, vcut)
                     if noise is not None and sensors.white_noise(v_raw, dt):
                         # White sensor noise, fused: quiet enough for the short one-sided
-                        # windows that keep a kink of the motion (``sensors.lpa_ici``).
-                        v_pred, v_sd = sensors.lpa_ici(v, dt, noise, mask, v_fit)
-                        pred_text = _lpa_text(v_sd, mask)
+                        # windows that keep a kink of the motion.
+                        v_pred, share = sensors.directional_velocity(v, dt, vcut, noise, mask)
+                        pred_text = _lpa_text(share, mask)
                     elif noise is not None:
                         # the rig's own derivative of the displacement: blue noise
                         v_pred, cuts = sensors.ici_lowpass(v, dt, vcut, noise)
                         pred_text = _ici_text(cuts, mask)
-                    v = v_fit
+                    v = sensors.smooth_velocity(v, dt, vcut)
                     top = vcut
                     parts.append(f'zero-phase Butterworth order 4 {vcut:.3g} Hz: noise '
                                  f'above the motion band removed, {removed:.3g} m/s RMS')

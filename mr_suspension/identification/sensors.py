@@ -597,7 +597,7 @@ def measured_velocity_noise(x, v, dt, fc=None):
 DERIV_TOL = 1.5       # ``measured_velocity_noise``: white levels of ``v`` and dx/dt this close
 
 
-def ici_lowpass(y, dt, cut, noise, gamma=ICI_GAMMA):
+def ici_lowpass(y, dt, cut, noise, gamma=ICI_GAMMA, with_sd=False):
     """Zero-phase low-pass of ``y`` at ``cut`` or, per sample, as far below as the data allow.
 
     A ladder of 4th-order zero-phase Butterworth low-passes ``y_j`` from ``cut`` [Hz] down to
@@ -608,7 +608,8 @@ def ici_lowpass(y, dt, cut, noise, gamma=ICI_GAMMA):
     & Nemirovski 1997, Katkovnik 1999). Slow motion is smoothed below ``cut``, a fast reversal
     keeps ``cut``; never wider than ``cut``, so never noisier than its one low-pass. Within
     half a period of a rung's cut-off from either end (one-sided there) that rung is not taken.
-    Returns ``(estimate, cut-off per sample [Hz])``.
+    Returns ``(estimate, cut-off per sample [Hz])``; ``with_sd``: also the chosen rung's noise
+    deviation per sample.
     """
     y = np.asarray(y, dtype=float)
     k = max(0, int(math.floor(math.log(cut / BAND_MIN) / math.log(ICI_STEP))))
@@ -619,6 +620,7 @@ def ici_lowpass(y, dt, cut, noise, gamma=ICI_GAMMA):
     alive = np.ones(y.size, dtype=bool)
     out = np.empty_like(y)
     chosen = np.empty_like(y)
+    chosen_sd = np.empty_like(y)
     ends = np.minimum(np.arange(y.size), np.arange(y.size)[::-1])
     for c in cuts:
         est = lowpass(y, dt, c, order=4)
@@ -630,7 +632,8 @@ def ici_lowpass(y, dt, cut, noise, gamma=ICI_GAMMA):
             alive &= (lo <= hi) & (ends >= math.ceil(0.5 / (c * dt)))
         out[alive] = est[alive]
         chosen[alive] = c
-    return out, chosen
+        chosen_sd[alive] = sig
+    return (out, chosen, chosen_sd) if with_sd else (out, chosen)
 
 
 LPA_ORDER = 2        # ``lpa_ici``: local polynomial degree (a turn of the motion is quadratic)
@@ -657,7 +660,7 @@ def _correlate(y, t, c):
     return full[hi:hi + y.size]
 
 
-def lpa_ici(y, dt, noise, mask=None, fallback=None, gamma=ICI_GAMMA, order=LPA_ORDER):
+def lpa_ici(y, dt, noise, mask=None, gamma=ICI_GAMMA, order=LPA_ORDER):
     """Per-sample local polynomial smoothing of ``y`` over past, centred and future windows.
 
     For each direction (past, centred, future) a ladder of half-windows ``h`` from
@@ -670,8 +673,8 @@ def lpa_ici(y, dt, noise, mask=None, fallback=None, gamma=ICI_GAMMA, order=LPA_O
     variance (Katkovnik, Egiazarian & Astola 2006, Local Approximation Techniques in Signal
     and Image Processing, ch. 6). A one-sided window keeps a kink of the motion (a reversal
     against a yield force) that every symmetric one blurs; slow motion gets long windows.
-    Windows never reach past either end. Returns ``(estimate, its noise deviation per
-    sample)``.
+    Windows never reach past either end nor hold a sample ``mask`` refuses. Returns
+    ``(estimate, its noise deviation per sample)``: NaN and inf where no window fits.
     """
     y = np.asarray(y, dtype=float)
     n = y.size
@@ -716,8 +719,29 @@ def lpa_ici(y, dt, noise, mask=None, fallback=None, gamma=ICI_GAMMA, order=LPA_O
         ok = np.isfinite(var) & (var > 0)
         num[ok] += est[ok] / var[ok]
         den[ok] += 1.0 / var[ok]
-    out = np.where(den > 0, num / np.where(den > 0, den, 1.0), y if fallback is None else fallback)
-    return out, np.where(den > 0, 1.0 / np.sqrt(np.where(den > 0, den, 1.0)), np.inf)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        return num / den, 1.0 / np.sqrt(den)
+
+
+def directional_velocity(y, dt, cut, noise, mask=None):
+    """Prediction velocity: the low-pass ladder and the directional local fits, fused.
+
+    Four estimates of the rate ``y`` per sample, each with its noise deviation: the
+    zero-phase Butterworth ladder (``ici_lowpass``, from ``cut`` down; it carries a smooth
+    stretch on the longest filters) and the past, centred and future local quadratic fits
+    (``lpa_ici``; a one-sided window keeps the kink of a reversal against a yield force).
+    Fused by inverse variance: ``v = sum(v_k / s_k^2) / sum(1 / s_k^2)`` (the ``s_k`` count
+    noise only, as if the four were independent: weights, not an error bar). Returns ``(v,
+    the local fits' share of the weight per sample)``; where every local window holds a
+    masked sample, the ladder (share 0).
+    """
+    lad, _, lad_sd = ici_lowpass(y, dt, cut, noise, with_sd=True)
+    loc, loc_sd = lpa_ici(y, dt, noise, mask)
+    fit = np.isfinite(loc_sd)
+    w_lad = 1.0 / lad_sd ** 2
+    w_loc = np.where(fit, 1.0 / np.where(fit, loc_sd, 1.0) ** 2, 0.0)
+    v = (w_lad * lad + w_loc * np.where(fit, loc, 0.0)) / (w_lad + w_loc)
+    return v, w_loc / (w_lad + w_loc)
 
 
 def smooth_velocity(v, dt, cutoff):
