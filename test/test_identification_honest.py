@@ -12,7 +12,7 @@ import pytest
 
 from mr_suspension.core.config import load_driver
 from mr_suspension.identification import data as dataio
-from mr_suspension.identification import diagnose, engine, noise, report
+from mr_suspension.identification import diagnose, engine, noise, report, sensors
 from mr_suspension.truth import cases
 
 
@@ -1285,6 +1285,36 @@ def test_the_prediction_velocity_is_nearer_the_truth_where_the_yield_turns(fault
     near, whole = np.array(near), np.array(whole)
     assert np.exp(np.mean(np.log(near))) < 0.97 and near.max() < 1.05
     assert np.exp(np.mean(np.log(whole))) < 0.95 and whole.max() < 1.0
+
+
+def test_the_local_fits_bring_the_prediction_velocity_nearer_than_the_ladder_alone():
+    """Truth records, a measured velocity with white noise: the local fits against the ladder.
+
+    ``sensors.directional_velocity`` (the Butterworth ladder fused with past, centred and
+    future local quadratic fits) against the ladder alone (``sensors.ici_lowpass``, the
+    prediction velocity before stop 43) on the same fused rate. The truth's reversals turn
+    against its yield force; measured at stop 43 on seeds 0-11: 0.54-0.88x near the yield,
+    0.61-0.86x over the record.
+    """
+    near, whole = [], []
+    for seed in range(6):
+        case = cases.make_case(seed, (), sensor_faults=(), duration=12.0)
+        rec = _record(case.columns)
+        assert 'local quadratic fits' in rec.velocity_source
+        x, dt = rec.displacement, rec.dt
+        raw = np.asarray(case.columns['velocity'], dtype=float)
+        fused, fc = sensors.fuse_velocity(x, raw, dt)
+        noise = sensors.measured_velocity_noise(x, raw, dt, fc)
+        ladder, _ = sensors.ici_lowpass(fused, dt, sensors.motion_band(fused, dt)[0], noise)
+        v = case.clean['velocity'][case.sensor['info']['rows']]
+        m = rec.mask & (np.abs(v) < 0.01)
+
+        def rms(a, mm):
+            return np.sqrt(np.mean((a - v)[mm] ** 2))
+        near.append(rms(rec.velocity_pred, m) / rms(ladder, m))
+        whole.append(rms(rec.velocity_pred, rec.mask) / rms(ladder, rec.mask))
+    assert np.exp(np.mean(np.log(near))) < 0.8 and max(near) < 0.95
+    assert np.exp(np.mean(np.log(whole))) < 0.85 and max(whole) < 0.95
 
 
 def test_a_saved_model_predicts_with_the_prediction_velocity():

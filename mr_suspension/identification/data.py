@@ -61,7 +61,7 @@ class Record:
     sensor findings (``sensors``). ``stamps`` are the input rows' own times relative to the
     first and ``stamp_index`` their grid samples (None when the rows were resampled).
     ``velocity_pred``: the velocity a prediction takes when it is not ``velocity`` (a noisy
-    measured or derived velocity low-passed with a cut-off per sample, ``for_prediction``),
+    measured or derived velocity, ``for_prediction``),
     else None.
     """
 
@@ -164,15 +164,7 @@ def _grid_mask(base, row_mask, gap_mask, n):
     return mask
 
 
-def _ici_text(cuts, mask):
-    """Describe an ICI low-pass (``sensors.ici_lowpass``) by its cut-offs over ``mask``."""
-    lo, med, hi = np.percentile(cuts[mask], [5, 50, 95])
-    return (f'zero-phase Butterworth order 4 with a cut-off per sample (intersection of '
-            f'confidence intervals): {lo:.3g} / {med:.3g} / {hi:.3g} Hz (5 / 50 / 95 % of '
-            'samples)')
-
-
-def _lpa_text(share, mask):
+def _pred_text(share, mask):
     """Describe ``sensors.directional_velocity``'s estimate by the local fits' weight."""
     most = 100.0 * float(np.mean(share[mask] > 0.5))
     return ('the ladder of zero-phase low-passes and local quadratic fits over past, centred '
@@ -181,11 +173,12 @@ def _lpa_text(share, mask):
             'of samples)')
 
 
-def _derived_pred(x, dt, cut, opts, vsrc):
+def _derived_pred(x, dt, cut, opts, vsrc, mask):
     """Prediction velocity of a derived one (``Record.velocity_pred``) and its description.
 
-    The central difference of ``x`` low-passed with a cut-off per sample at or below the
-    motion band's ``cut`` (``sensors.ici_lowpass``); None with the user's cut-off or none.
+    The central difference of ``x`` through ``sensors.directional_velocity`` (the low-pass
+    ladder from the motion band's ``cut`` down, fused with past, centred and future local
+    quadratic fits); None with the user's cut-off or none.
     """
     from mr_suspension.identification import sensors
 
@@ -194,8 +187,8 @@ def _derived_pred(x, dt, cut, opts, vsrc):
     noise = sensors.velocity_noise(x, None, dt)
     if not np.std(noise) > 0:
         return None, vsrc
-    v_pred, cuts = sensors.ici_lowpass(np.gradient(x, dt), dt, cut, noise)
-    return v_pred, vsrc + '; for predictions ' + _ici_text(cuts, np.ones(x.size, dtype=bool))
+    v_pred, share = sensors.directional_velocity(np.gradient(x, dt), dt, cut, noise, mask)
+    return v_pred, vsrc + '; for predictions ' + _pred_text(share, mask)
 
 
 def velocity_edge(cutoff, dt, n):
@@ -426,7 +419,7 @@ def build_record(name, cols, opts=None, meta=None):
             warnings.warn(f'{name}: {fv["finding"]}: {fv["detail"]}')
             top = cut
             vsrc = derived + '; measured velocity replaced'
-            v_pred, vsrc = _derived_pred(x, dt, cut, opts, vsrc)
+            v_pred, vsrc = _derived_pred(x, dt, cut, opts, vsrc, mask)
         elif not opts.velocity_cutoff:
             # White sensor noise above the motion band only scatters the yield branch.
             vrms = float(np.sqrt(np.mean(v[mask] ** 2)))
@@ -443,15 +436,9 @@ def build_record(name, cols, opts=None, meta=None):
                 if vcut is not None and removed > 1e-3 * vrms:
                     noise = sensors.measured_velocity_noise(x, v_raw, dt, fc)
                     pred_text = None
-                    if noise is not None and sensors.white_noise(v_raw, dt):
-                        # White sensor noise, fused: quiet enough for the short one-sided
-                        # windows that keep a kink of the motion.
+                    if noise is not None:
                         v_pred, share = sensors.directional_velocity(v, dt, vcut, noise, mask)
-                        pred_text = _lpa_text(share, mask)
-                    elif noise is not None:
-                        # the rig's own derivative of the displacement: blue noise
-                        v_pred, cuts = sensors.ici_lowpass(v, dt, vcut, noise)
-                        pred_text = _ici_text(cuts, mask)
+                        pred_text = _pred_text(share, mask)
                     v = sensors.smooth_velocity(v, dt, vcut)
                     top = vcut
                     parts.append(f'zero-phase Butterworth order 4 {vcut:.3g} Hz: noise '
@@ -463,7 +450,7 @@ def build_record(name, cols, opts=None, meta=None):
         v = derive_velocity(x, dt, cut, order)
         vsrc = derived
         top = cut
-        v_pred, vsrc = _derived_pred(x, dt, cut, opts, vsrc)
+        v_pred, vsrc = _derived_pred(x, dt, cut, opts, vsrc, mask)
     edge = velocity_edge(top, dt, mask.size)
     if edge:
         # Within half a period of the cut-off from either end the zero-phase filter has
@@ -929,8 +916,9 @@ def for_prediction(rec):
     Identification and prediction ask different things of a noisy velocity. A fit wants it
     free of bias, or a series spring's stiffness and a loop's width absorb the bias at the
     reversals: the motion band's one low-pass. A prediction wants the least error per
-    sample: a cut-off per sample at or below the band's (``sensors.ici_lowpass``), far quieter
-    in slow motion, where a steep yield turns on a few mm/s.
+    sample: a cut-off per sample at or below the band's, far quieter in slow motion, where a
+    steep yield turns on a few mm/s, fused with one-sided local fits that keep the kink of a
+    reversal (``sensors.directional_velocity``).
     """
     if rec.velocity_pred is None:
         return rec
