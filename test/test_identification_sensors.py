@@ -568,3 +568,15 @@ def test_lpa_ici_windows_skip_masked_samples_and_stay_inside_the_record():
     # fused with the ladder, those samples take the ladder
     fused, share = sensors.directional_velocity(bad, dt, 60.0, model, mask)
     assert np.all(np.isfinite(fused)) and np.all(share[1002:1008] == 0)
+
+
+def test_directional_velocity_without_noise_or_samples_is_the_ladder():
+    dt = 1e-3
+    t, v = _kinked_strokes(1000.0, seconds=2.0)
+    est, share = sensors.directional_velocity(v, dt, 60.0, np.zeros(t.size))
+    np.testing.assert_array_equal(est, sensors.ici_lowpass(v, dt, 60.0, np.zeros(t.size))[0])
+    assert not share.any()
+    # a record shorter than the shortest local window: the ladder, finite
+    short = v[:4] + 1e-3
+    est, share = sensors.directional_velocity(short, dt, 60.0, np.full(4, 1e-3))
+    assert np.all(np.isfinite(est)) and not share.any()

@@ -733,9 +733,11 @@ def directional_velocity(y, dt, cut, noise, mask=None):
     Fused by inverse variance: ``v = sum(v_k / s_k^2) / sum(1 / s_k^2)`` (the ``s_k`` count
     noise only, as if the four were independent: weights, not an error bar). Returns ``(v,
     the local fits' share of the weight per sample)``; where every local window holds a
-    masked sample, the ladder (share 0).
+    masked sample, or with a noise of zero deviation, the ladder (share 0).
     """
     lad, _, lad_sd = ici_lowpass(y, dt, cut, noise, with_sd=True)
+    if not np.all(lad_sd > 0):  # no noise to weigh by: nothing to fuse
+        return lad, np.zeros(lad.size)
     loc, loc_sd = lpa_ici(y, dt, noise, mask)
     fit = np.isfinite(loc_sd)
     w_lad = 1.0 / lad_sd ** 2
