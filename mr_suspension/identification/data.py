@@ -435,16 +435,14 @@ def build_record(name, cols, opts=None, meta=None):
                 vcut, removed = sensors.motion_band(v, dt)
                 if vcut is not None and removed > 1e-3 * vrms:
                     noise = sensors.measured_velocity_noise(x, v_raw, dt, fc)
-                    pred_text = None
                     if noise is not None:
                         v_pred, share = sensors.directional_velocity(v, dt, vcut, noise, mask)
-                        pred_text = _pred_text(share, mask)
                     v = sensors.smooth_velocity(v, dt, vcut)
                     top = vcut
                     parts.append(f'zero-phase Butterworth order 4 {vcut:.3g} Hz: noise '
                                  f'above the motion band removed, {removed:.3g} m/s RMS')
-                    if pred_text is not None:
-                        parts.append('for predictions ' + pred_text)
+                    if v_pred is not None:
+                        parts.append('for predictions ' + _pred_text(share, mask))
                 vsrc = f'measured ({"; ".join(parts)})' if parts else vsrc
     else:
         v = derive_velocity(x, dt, cut, order)

@@ -640,24 +640,10 @@ LPA_ORDER = 2        # ``lpa_ici``: local polynomial degree (a turn of the motio
 LPA_MIN = 2          # ``lpa_ici``: shortest half-window [samples]
 
 
-def _lpa_kernel(h, side, order=LPA_ORDER):
-    """Weights of the value at ``t = 0`` of a least-squares polynomial over a window.
-
-    ``side`` 0: samples ``-h..h``; -1: ``-2h..0`` (past); +1: ``0..2h`` (future). Returns the
-    offsets and the weights ``c`` (``estimate[n] = sum c_j y[n + t_j]``).
-    """
-    t = np.arange(-h, h + 1) if side == 0 else np.arange(0, 2 * h + 1) * side
-    basis = np.vander(t.astype(float), order + 1, increasing=True)
-    return t, np.linalg.pinv(basis)[0]
-
-
-def _correlate(y, t, c):
-    """Return ``sum_j c_j y[n + t_j]`` for every ``n`` (zero beyond the ends; FFT)."""
-    lo, hi = int(t.min()), int(t.max())
-    ker = np.zeros(hi - lo + 1)
-    ker[t - lo] = c
-    full = signal.oaconvolve(y, ker[::-1], mode='full')
-    return full[hi:hi + y.size]
+def _correlate(y, first, c):
+    """Return ``sum_j c_j y[n + first + j]`` for every ``n`` (zero beyond the ends; FFT)."""
+    last = first + c.size - 1
+    return signal.oaconvolve(y, c[::-1], mode='full')[last:last + y.size]
 
 
 def lpa_ici(y, dt, noise, mask=None, gamma=ICI_GAMMA, order=LPA_ORDER):
@@ -680,12 +666,9 @@ def lpa_ici(y, dt, noise, mask=None, gamma=ICI_GAMMA, order=LPA_ORDER):
     n = y.size
     noise = np.asarray(noise, dtype=float)
     h_max = max(LPA_MIN, int(0.5 / (BAND_MIN * dt)))
-    hs = []
-    h = float(LPA_MIN)
-    while int(round(h)) <= h_max:
-        if not hs or int(round(h)) > hs[-1]:
-            hs.append(int(round(h)))
-        h *= ICI_STEP
+    hs = np.unique(np.round(LPA_MIN * ICI_STEP ** np.arange(
+        1 + math.log(h_max / LPA_MIN) / math.log(ICI_STEP))).astype(int))
+    hs = hs[hs <= h_max]
     idx = np.arange(n)
     # windows holding an unusable (filled) sample count as beyond an end
     bad = np.zeros(n + 1, dtype=np.int64)
@@ -701,14 +684,18 @@ def lpa_ici(y, dt, noise, mask=None, gamma=ICI_GAMMA, order=LPA_ORDER):
         est = np.zeros(n)
         var = np.full(n, np.inf)
         for h in hs:
-            t, c = _lpa_kernel(h, side, order)
-            a, b = idx + t.min(), idx + t.max()
+            # the window's first sample, behind (-2h), around (-h) or at (0) the estimate's;
+            # Savitzky-Golay weights of the polynomial's value at the estimate's sample
+            first = {-1: -2 * h, 0: -h, 1: 0}[side]
+            c = signal.savgol_coeffs(2 * h + 1, order, pos=-first, use='dot')
+            a, b = idx + first, idx + first + 2 * h
             valid = (a >= 0) & (b < n)
             valid[valid] = bad[b[valid] + 1] == bad[a[valid]]
             if not valid.any():
                 break
-            e = _correlate(y, t, c)
-            e_noise = _correlate(noise, t, c)[max(edge, t.max()):noise.size - max(edge, -t.min())]
+            e = _correlate(y, first, c)
+            e_noise = _correlate(noise, first, c)[max(edge, first + 2 * h):
+                                                  noise.size - max(edge, -first)]
             sig = float(np.std(e_noise)) if e_noise.size > 10 else \
                 float(np.std(noise) * math.sqrt(np.dot(c, c)))
             lo = np.maximum(lo, e - gamma * sig)
