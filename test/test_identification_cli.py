@@ -1,6 +1,7 @@
 """CLI: diagnose writes report/model/figures, predict reproduces the fit, doe, help, errors."""
 
 import argparse
+import dataclasses
 import json
 
 import numpy as np
@@ -161,3 +162,24 @@ def test_fitted_range_flags_only_what_leaves_it():
         model_io.check_model(model)
     model['fitted_range'] = rng
     assert model_io.check_model(model) is model
+
+
+def test_a_hedge_in_model_json_is_averaged_into_predict_and_checked():
+    rec, _ = synthetic.make_record(('current_lag',), seed=4, duration=3.0)
+    dyn = {'dead_time': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0}
+    tanh = model_io.ExtendedDamperParams(c0=900.0, c1=2000.0, fy0=80.0, fy1=600.0, v_y=0.02)
+    shaped = dataclasses.replace(tanh, c0=500.0, yield_n=1.5, v_y=0.03)
+    model = model_io.model_dict(tanh, dyn, ('current_lag',), 'current_command')
+    alone = model_io.predict(model, rec)
+    other = model_io.predict(model_io.model_dict(shaped, dyn, (), 'current_command'), rec)
+    assert np.max(np.abs(alone - other)) > 1.0
+    for w in (0.0, 0.5, 1.0):
+        model['hedge'] = model_io.hedge_dict(shaped, dyn, ('yield_shape',), weight=w)
+        np.testing.assert_allclose(model_io.predict(model, rec),
+                                   (1 - w) * alone + w * other, rtol=1e-12, atol=1e-9)
+    model['hedge']['weight'] = 1.5
+    with pytest.raises(ValueError, match='hedge must be a model block with a weight'):
+        model_io.check_model(model)
+    model['hedge'] = {'weight': 0.5, 'damper': {'law': 'extended', 'v_y': -1.0}}
+    with pytest.raises(ValueError, match='hedge'):
+        model_io.check_model(model)

@@ -50,6 +50,7 @@ FULL_RATE_SENSORS = ('channel_filter',)  # sensor effects judged at the full rat
 T_THERMAL = 5.0
 PERIODIC = 0.9  # velocity correlation one period later: the record repeats one cycle
 T_FINE = 3.0  # fold t the extra full-rate test needs (after the selection: a stricter bar)
+TIE_T = 1.0  # a yield shape not worse by more fold standard errors ties (``_hedge``)
 G_FINE = 0.1  # held-out gain at which a full-rate candidate needs only T_MIN (see ``_pays``)
 RESCREEN_T = T_MIN  # fold t of a physical cause screened again after a full-rate timing
 # The static yield shape judged in place of a loop by output error (``_spring_loop_as_shape``):
@@ -668,6 +669,12 @@ class DiagnosisResult:
     singles_base_test: np.ndarray
     input_kind: str
     fitted_range: dict
+    hedge: object = None
+
+    @property
+    def predictors(self):
+        """Models whose mean simulation is the extended prediction (``final``, ``hedge``)."""
+        return (self.final,) if self.hedge is None else (self.final, self.hedge)
 
     @property
     def physical_causes(self):
@@ -1594,14 +1601,47 @@ def _shape_again(ds, final, chosen, steps, tick):
     yield force, and held it kept an arctan truth's shape at fold t 0.3 (gain 0.02;
     refitted: t 2.4, gain 0.12, unseen / floor 5.5 -> 3.1). Named by ``_fine_stage``'s rule
     (the stricter ``T_FINE`` of every test added after the selection). Appends its step
-    record to ``steps``; returns ``(final, chosen)``.
+    record to ``steps``; returns ``(final, chosen, tie)``: ``tie`` is the shaped fit when it
+    was not named yet ties (``_hedge``), else None.
     """
     if not _shape_may_join(final, chosen):
-        return final, chosen
+        return final, chosen, None
+    pool = {}
     final, chosen, step = _fine_stage(ds, final, chosen, ['yield_shape'], tick,
-                                      'yield shape again (full rate)', free=True)
+                                      'yield shape again (full rate)', free=True, out=pool)
     steps.append(step)
-    return final, chosen
+    tie = step['candidates'].get('yield_shape')
+    if 'yield_shape' in chosen or tie is None or tie['t'] < -TIE_T:
+        return final, chosen, None
+    step['hedge'] = True
+    return final, chosen, pool['yield_shape']
+
+
+def _hedge(ds, final, chosen, tie, shaped_on):
+    """Return the prediction's second model when the yield shape ties, or None.
+
+    Where the held-out folds cannot tell the shaped curve from tanh (not named, yet not
+    worse by more than ``TIE_T`` fold standard errors), the two agree on the fitted rates
+    and part beyond them: tanh then carries its tail as a steeper linear slope (an arctan
+    damper: 2.3x the true viscous slope, its record at 2.4x the fitted rates missed by 3.1
+    noise floors; the tied shape 1.9). Their equal-weight mean is the prediction whose
+    worst case, whichever of the two is right, is smallest (minimax squared error).
+    ``shaped_on`` is the model the tie was fitted on; a later stage that changed the model
+    gets the shape refitted on top of it (shape parameters as start).
+    """
+    if tie is None or 'yield_shape' in chosen or not _shape_may_join(final, chosen):
+        return None
+    if final is shaped_on:
+        return tie
+    eta = {**final.eta, 'yield_n': tie.eta['yield_n'], 'v_y': tie.eta['v_y']}
+    return engine.fit(ds, tuple(final.effects) + ('yield_shape',), start_eta=eta,
+                      start_theta=final.theta, new=(), sweeps=1, local=(0.8, 1.0, 1.25))
+
+
+def predict_force(record, fits):
+    """Force [N] of the prediction on ``record``: the mean of ``fits``' simulations."""
+    return np.mean([engine.simulate(record, f.params(), f.dynamics(), **f.channel)
+                    for f in fits], axis=0)
 
 
 def _beyond_room(ds, final, chosen, physics, floor, tick):
@@ -1637,15 +1677,13 @@ def _fine_losses(steps):
     return {s['added']: s['loss'] for s in steps if 'added' in s}
 
 
-def outer_mse(ds, fit):
-    """Mean squared error of a fitted model on the untouched outer blocks, simulated exactly."""
+def outer_mse(ds, *fits):
+    """Mean squared error on the untouched outer blocks of ``predict_force(fits)``, simulated."""
     err = []
-    params = fit.params()
-    dyn = fit.dynamics()
     for r, sl in zip(ds.records, ds.slices):
         m = ds.outer[sl]
         if m.any():
-            f = engine.simulate(r, params, dyn, **fit.channel)
+            f = predict_force(r, fits)
             err.append((r.force[m] - f[m]) ** 2)
     return float(np.mean(np.concatenate(err))) if err else float('nan')
 
@@ -1790,6 +1828,7 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
         drop_loss[chosen[0]] = fold_stats(final.test, base.test)[0]
     final_search = final
     ds_search = ds
+    tie = shaped_on = None
     if search_rate:
         ds = engine.Dataset(full, n_folds=n_folds, outer=outer)
         base, final, chosen = _full_rate(ds, base, final, chosen, drop_loss, ds_search,
@@ -1807,7 +1846,8 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
             if any(f.get('added') not in (None, 'channel_delay') for f in fine):
                 final, chosen = _rescreen(ds, final, chosen, physics, fine, tick)
             if 'yield_shape' in physics:
-                final, chosen = _shape_again(ds, final, chosen, fine, tick)
+                final, chosen, tie = _shape_again(ds, final, chosen, fine, tick)
+                shaped_on = final
             steps = tuple(steps) + tuple(fine)
             for e, loss in _fine_losses(fine).items():
                 if e in chosen:
@@ -1834,6 +1874,9 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
         steps = tuple(steps) + (beyond,)
         if 'added' in beyond:
             drop_loss[beyond['added']] = beyond['loss']
+    hedge = _hedge(ds, final if chosen else base, chosen, tie, shaped_on)
+    if hedge is not None:
+        tick('yield shape: prediction hedge')
     # Per-cause "alone" figures at the full rate: the effect's parameters from the final
     # fit, linear parameters refitted per fold (one regressor evaluation each).
     cause_test = {}
@@ -1860,6 +1903,8 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
                    'std': float(np.std(ds.force[ds.outer])), 'source': 'outer blocks'}
         if heldout['extended_mse'] is None:
             heldout['extended_mse'] = heldout['baseline_mse']
+        if hedge is not None:
+            heldout['hedged_mse'] = outer_mse(ds, final if chosen else base, hedge)
     else:
         w = base.n_test / base.n_test.sum()
         heldout = {'baseline_mse': float(np.sum(base_exact * w)),
@@ -1867,6 +1912,8 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
                    'source': 'inner folds (no outer blocks)'}
     heldout['baseline_nrmse'] = float(np.sqrt(heldout['baseline_mse']) / heldout['std'])
     heldout['extended_nrmse'] = float(np.sqrt(heldout['extended_mse']) / heldout['std'])
+    if 'hedged_mse' in heldout:
+        heldout['hedged_nrmse'] = float(np.sqrt(heldout['hedged_mse']) / heldout['std'])
     floor = noise.bounded(floor_raw, float(np.sqrt(heldout['extended_mse'])))
     ambiguous = tuple(p for p in ambiguous if set(p) & set(order))
     phys = [e for e in order if locations[e] != 'sensor']
@@ -1883,6 +1930,7 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
         ds_all = engine.Dataset(full, n_folds=n_folds, outer=False)
         base = all_data(ds_all, base)
         final = all_data(ds_all, final) if chosen else base
+        hedge = all_data(ds_all, hedge) if hedge is not None else None
     return DiagnosisResult(
         dataset=ds, baseline=base, final=final if chosen else base, singles=singles,
         causes=tuple(order), locations=locations, drop_loss=drop_loss, ambiguous=ambiguous,
@@ -1890,7 +1938,7 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
         verdict=verdict, base_exact=base_exact, final_exact=final_exact, heldout=heldout,
         floor=floor, residual_map=rmap, driver=driver, findings=findings,
         cause_test=cause_test, singles_base_test=parent0.test, input_kind=input_kind,
-        fitted_range=model_io.fitted_range(ds.records))
+        fitted_range=model_io.fitted_range(ds.records), hedge=hedge)
 
 
 class Diagnosis:
@@ -1931,15 +1979,17 @@ class Diagnosis:
     def predict(self, record, model='extended'):
         """Force [N] of the extended (or ``'baseline'``) model on a record, as measured.
 
+        The extended prediction is the mean of ``result_.predictors``: the named model and,
+        where a yield shape tied with it, that shaped model (``_hedge``).
+
         Warns (``UserWarning``) when the record leaves the input range of the fitted records
         (``model_io.outside_range``): the prediction extrapolates there.
         """
         res = self._check()
-        fit = res.final if model == 'extended' else res.baseline
-        params = fit.params()
-        model_io.warn_outside(res.fitted_range, record, params)
+        fits = res.predictors if model == 'extended' else (res.baseline,)
+        model_io.warn_outside(res.fitted_range, record, fits[0].params())
         record = denoise_current(dataio.for_prediction(record), res.driver)
-        return engine.simulate(record, params, fit.dynamics(), **fit.channel)
+        return predict_force(record, fits)
 
     def score(self, record, model='extended'):
         """NRMSE (RMS error / std of the measured force) on a record never used in the fit."""

@@ -7,7 +7,12 @@ Layout::
      "current_dynamics": {"dead_time": s, "tau_rise": s, "tau_fall": s},
      "input": {"signal": "current_command" | "voltage_command" | "current", "map": "..."},
      "effects": [...], "fitted_on": [...],
-     "fitted_range": {"abs_velocity_p999": m/s, "displacement": [m, m], "abs_input_max": A}}
+     "fitted_range": {"abs_velocity_p999": m/s, "displacement": [m, m], "abs_input_max": A},
+     "hedge": {"damper": {...}, "current_dynamics": {...}, "effects": [...], "weight": 0.5}}
+
+``hedge`` (optional) is a second model that ties with the named one on the held-out data
+(``diagnose._hedge``): ``predict`` returns the weighted mean of both; the simulator and the
+actuator node run the named model (``damper``).
 
 The current dynamics map onto ``core.driver.DriverParams`` (``tau_rise``, ``tau_fall``,
 ``dead_time``; fluid time constants 0): the simulator and actuator node run the driver, then
@@ -43,6 +48,13 @@ def model_dict(params, dyn, effects, input_kind, fitted_on=(), extra=None):
     if extra:
         d.update(extra)
     return d
+
+
+def hedge_dict(params, dyn, effects, weight=0.5):
+    """Return the ``hedge`` block: a second model whose prediction is averaged in."""
+    return {'damper': {'law': 'extended', **params.to_dict()},
+            'current_dynamics': {k: float(dyn[k]) for k in ('dead_time', 'tau_rise', 'tau_fall')},
+            'effects': list(effects), 'weight': float(weight)}
 
 
 RANGE_SLACK = 1.1  # a sample beyond this factor of the fitted range is outside it
@@ -170,6 +182,13 @@ def check_model(model, path='model.json'):
                          f'{signal!r}')
     if 'fitted_range' in model:
         _check_range_block(model['fitted_range'], path)
+    if model.get('hedge') is not None:
+        hedge = model['hedge']
+        w = hedge.get('weight') if isinstance(hedge, dict) else None
+        if not (isinstance(w, (int, float)) and 0.0 <= w <= 1.0):
+            raise ValueError(f'{path}: hedge must be a model block with a weight in [0, 1], '
+                             f'got {hedge!r:.80}')
+        check_model({k: v for k, v in hedge.items() if k != 'weight'}, f'{path} (hedge)')
     return model
 
 
@@ -206,4 +225,10 @@ def predict(model, record):
         # fitted driver (diagnose.denoise_current).
         from mr_suspension.identification.diagnose import denoise_current
         record = denoise_current(record, model['driver'])
-    return engine.simulate(record, params, fitted_dynamics(model['current_dynamics']))
+    f = engine.simulate(record, params, fitted_dynamics(model['current_dynamics']))
+    hedge = model.get('hedge')
+    if hedge:
+        fh = engine.simulate(record, ExtendedDamperParams.from_dict(hedge['damper']),
+                             fitted_dynamics(hedge['current_dynamics']))
+        f = (1.0 - hedge['weight']) * f + hedge['weight'] * fh
+    return f
