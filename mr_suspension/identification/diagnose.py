@@ -1638,10 +1638,13 @@ def _hedge(ds, final, chosen, tie, shaped_on):
                       start_theta=final.theta, new=(), sweeps=1, local=(0.8, 1.0, 1.25))
 
 
-def predict_force(record, fits):
-    """Force [N] of the prediction on ``record``: the mean of ``fits``' simulations."""
-    return np.mean([engine.simulate(record, f.params(), f.dynamics(), **f.channel)
-                    for f in fits], axis=0)
+def predict_force(record, fits, channel=True):
+    """Force [N] of the prediction on ``record``: the mean of ``fits``' simulations.
+
+    ``channel`` False: the physical models without the fitted force channel (delay, filter).
+    """
+    return np.mean([engine.simulate(record, f.params(), f.dynamics(),
+                                    **(f.channel if channel else {})) for f in fits], axis=0)
 
 
 def _beyond_room(ds, final, chosen, physics, floor, tick):

@@ -50,7 +50,10 @@ def model_dict(params, dyn, effects, input_kind, fitted_on=(), extra=None):
     return d
 
 
-def hedge_dict(params, dyn, effects, weight=0.5):
+HEDGE_WEIGHT = 0.5  # the hedge's share of a prediction (``diagnose.predict_force``: the mean)
+
+
+def hedge_dict(params, dyn, effects, weight=HEDGE_WEIGHT):
     """Return the ``hedge`` block: a second model whose prediction is averaged in."""
     return {'damper': {'law': 'extended', **params.to_dict()},
             'current_dynamics': {k: float(dyn[k]) for k in ('dead_time', 'tau_rise', 'tau_fall')},

@@ -158,7 +158,7 @@ def build(res, records, validate=(), elapsed=None):
         h = res.hedge
         report['extended']['hedge'] = {
             'model': extended_text(h.effects), 'parameters': h.params().to_dict(),
-            'current_dynamics': h.dynamics(), 'weight': 0.5,
+            'current_dynamics': h.dynamics(), 'weight': model_io.HEDGE_WEIGHT,
             'heldout_nrmse_of_mean': ho.get('hedged_nrmse'),
             'note': ('the yield shape ties with tanh on the held-out folds (not named): '
                      'predict and validation use the mean of both models, which part beyond '
@@ -195,20 +195,18 @@ def build(res, records, validate=(), elapsed=None):
                                 [r.name for r in records], extra)
     if validate:
         vstd = float(np.std(np.concatenate([r.force for r in validate])))
-        bdyn = engine.current_dynamics((), base.eta)
 
-        def vn(params, dyn, *more):
-            err = [r.force - np.mean([engine.simulate(r, p, d) for p, d in
-                                      ((params, dyn),) + more], axis=0) for r in validate]
+        def vn(fits):
+            err = [r.force - diagnose.predict_force(r, fits, channel=False) for r in validate]
             return _nrmse(float(np.mean(np.concatenate(err) ** 2)), vstd)
 
-        vb = vn(base.params(), bdyn)
-        ve = vn(ext_params, ext_dyn, *[(f.params(), f.dynamics()) for f in res.predictors[1:]])
+        vb = vn((base,))
+        ve = vn(res.predictors)
         per = {}
         for e in damper_causes:
             s = res.singles.get(e)
             if s is not None:
-                per[e] = vn(s.params(), s.dynamics())
+                per[e] = vn((s,))
         report['validation'] = {
             'records': [r.name for r in validate], 'baseline_nrmse': vb,
             'extended_nrmse': ve, 'gain': 1.0 - ve / vb, 'single_effect_nrmse': per,
@@ -217,14 +215,10 @@ def build(res, records, validate=(), elapsed=None):
 
 
 def _predictions(res, records, delay=True):
-    base = res.baseline
-    final = res.final
-    bdyn = engine.current_dynamics((), base.eta)
     out = []
     for r in records:
-        fb = engine.simulate(r, base.params(), bdyn)
-        fe = (diagnose.predict_force(r, res.predictors) if delay else
-              engine.simulate(r, final.params(), final.dynamics()))
+        fb = diagnose.predict_force(r, (res.baseline,), channel=False)
+        fe = diagnose.predict_force(r, res.predictors, channel=delay)
         out.append((r, fb, fe))
     return out
 
