@@ -53,7 +53,7 @@ def main(argv=None):
     print(f'damper {args.damper}; {args.calls} Python calls per law; loop: 20 s ISO C road')
     print(f'{"law":16s} {"call median [us]":>17s} {"call p99 [us]":>14s} {"in loop [us]":>13s}')
     for law in sorted(L.LAW_IDS, key=lambda n: L.LAW_IDS[n]):
-        ctrl = L.configure(law, car, damper, drv)
+        ctrl = cfg.configure(law, car, damper, drv)
         t = python_call_times(ctrl, args.calls, rng)
         conf = CornerConfig(car=car, damper=damper, driver=drv, controller=ctrl)
         simulate(conf, road)

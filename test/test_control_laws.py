@@ -154,7 +154,7 @@ def test_bad_parameters_raise(bad):
 
 def test_with_plant_and_configure():
     drv = cfg.load_driver('wonder_box')
-    c = L.configure('skyhook', CAR, 'seed002_tanh', drv, c_sky=1234.0)
+    c = cfg.configure('skyhook', CAR, 'seed002_tanh', drv, c_sky=1234.0)
     assert c.c_sky == 1234.0 and c.k_s == CAR.k_s and c.m_s == CAR.m_s
     assert c.damper_model['law'] == 'tanh'
     assert c.i_max <= drv.i_range + 1e-12
@@ -166,7 +166,7 @@ def test_with_plant_and_configure():
 def test_closed_loop_runs_are_passive_and_law_specific(law):
     """Every law through the offline simulator: finite, dissipative, its own commands."""
     road = rd.bump(0.05, 2.0, 10.0, t0=0.2, duration=2.0)
-    conf = CornerConfig(car=CAR, damper=DAMPER, driver=IDEAL, controller=L.configure(
+    conf = CornerConfig(car=CAR, damper=DAMPER, driver=IDEAL, controller=cfg.configure(
         law, CAR, DAMPER, IDEAL, current=0.4, febc_i_body=0.4, i_max=1.0))
     res = simulate(conf, road)
     assert np.all((res.i_cmd >= 0.0) & (res.i_cmd <= 1.0))
@@ -201,7 +201,7 @@ def test_noise_reaches_the_law():
     road = rd.step(0.0, t0=0.1, duration=0.5)
     runs = {}
     for noise in (0.0, 0.5):
-        conf = CornerConfig(car=CAR, damper=DAMPER, driver=IDEAL, controller=L.configure(
+        conf = CornerConfig(car=CAR, damper=DAMPER, driver=IDEAL, controller=cfg.configure(
             'skyhook', CAR, DAMPER, IDEAL, noise_acc=noise, noise_stroke=noise * 1e-3))
         runs[noise] = simulate(conf, road).i_cmd
     assert np.all(runs[0.0] == 0.0)

@@ -60,6 +60,8 @@ from mr_suspension.control import estimation as est
 from mr_suspension.control.febc import febc_step
 from mr_suspension.control.inverse import semi_active_current
 from mr_suspension.core import damper as dmp
+from mr_suspension.core.paramsets import load_damper
+from mr_suspension.core.quarter_car import QuarterCarParams
 from mr_suspension.core.validation import check_finite, check_nonneg, check_positive, check_range
 
 # Measurement vector layout.
@@ -116,7 +118,6 @@ def _damper_from(model):
     if model is None:
         return dmp.damper_from_dict(DEFAULT_DAMPER_MODEL)
     if isinstance(model, str):
-        from mr_suspension.core.config import load_damper
         return load_damper(model)
     if isinstance(model, dict):
         return dmp.damper_from_dict(model)
@@ -203,7 +204,6 @@ class ControllerParams:
         if self.i_min > self.i_max:
             raise ValueError(f'{owner}: i_min must be <= i_max')
         # Plausible ranges: plant knowledge as the vehicle's (core.quarter_car), gains generous.
-        from mr_suspension.core.quarter_car import QuarterCarParams
         for name in ('m_s', 'm_u', 'k_s', 'k_t', 'c_t'):
             lo, hi, unit, hint, _ = QuarterCarParams.__dataclass_fields__[name].metadata['range']
             check_range(owner, name, getattr(self, name), lo, hi, unit, hint)
@@ -365,28 +365,6 @@ GAIN_DESCRIPTIONS = {
     'c_t': 'plant knowledge: tyre damping [N s/m]',
     'damper_model': 'inverse damper model: config/dampers name or mapping (None = RD-1005)',
 }
-
-
-def configure(controller, car=None, damper=None, driver=None, **gains):
-    """Return the controller of a corner: set or params, gains overridden, plant knowledge.
-
-    ``controller``: a ``config/controllers`` name, a bare law name, a mapping or
-    :class:`ControllerParams`;
-    ``gains``: any fields of :data:`GAIN_DESCRIPTIONS`; ``car``, ``damper``, ``driver`` as in
-    :meth:`ControllerParams.with_plant`. This is what the controller node and the evaluation
-    use, so both run the same law with the same knowledge.
-    """
-    if isinstance(controller, str):
-        from mr_suspension.core.config import available, load_controller
-        if controller in LAW_IDS and controller not in available('controllers'):
-            controller = ControllerParams(law=controller)
-        else:
-            controller = load_controller(controller)
-    elif isinstance(controller, dict):
-        controller = ControllerParams.from_dict(controller)
-    if gains:
-        controller = ControllerParams.from_dict({**controller.to_dict(), **gains})
-    return controller.with_plant(car, damper, driver)
 
 
 @njit(cache=True)

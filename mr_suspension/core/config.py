@@ -2,147 +2,18 @@
 
 A name such as ``seed001_military`` is looked up as ``config/<kind>/<name>.yaml``; a path to a
 YAML (or JSON) file is read directly. The config directory is ``$MR_SUSPENSION_CONFIG`` if set,
-else ``config/`` of the package data (:func:`share_dir`).
+else ``config/`` of the package data (:func:`share_dir`). The plant's sets (vehicles, dampers,
+drivers) come from :mod:`~mr_suspension.core.paramsets`; the controller sets, which need the
+control laws, are read here.
 """
 
-import os
-from pathlib import Path
-import sys
+from mr_suspension.control.laws import ControllerParams, LAW_IDS
+from mr_suspension.core.paramsets import (available, build_set, config_dir, KINDS, load_damper,
+                                          load_driver, load_vehicle, load_yaml, PACKAGE,
+                                          share_candidates, share_dir)
 
-import yaml
-
-from mr_suspension.control.laws import ControllerParams
-from mr_suspension.core.damper import damper_from_dict
-from mr_suspension.core.driver import DriverParams, from_fitted_model
-from mr_suspension.core.quarter_car import QuarterCarParams
-
-KINDS = ('vehicles', 'dampers', 'drivers', 'controllers', 'scenarios')
-
-
-PACKAGE = 'mr_suspension'
-
-
-def share_candidates():
-    """Directories that may hold the package data (``config/``, ``msg_defs/``), in search order.
-
-    The source tree (``<repo>``, recognised by its ``package.xml``); the ament index when
-    ``ament_index_python`` is importable and ``AMENT_PREFIX_PATH`` is set (colcon install
-    space); ``<sys.prefix>/share/mr_suspension`` (where ``data_files`` go in a venv or wheel
-    install); the ``share/mr_suspension`` of the prefix this copy of the package is installed
-    under (``pip install --prefix``/``--user``).
-    """
-    here = Path(__file__).resolve()
-    out = []
-    if (here.parents[2] / 'package.xml').is_file():
-        out.append(here.parents[2])
-    if os.environ.get('AMENT_PREFIX_PATH'):
-        try:
-            from ament_index_python.packages import get_package_share_directory
-            out.append(Path(get_package_share_directory(PACKAGE)))
-        except Exception:  # noqa: B902 - not importable, or the package is not in the index
-            pass
-    out.append(Path(sys.prefix) / 'share' / PACKAGE)
-    # <prefix>/lib/pythonX.Y/site-packages/mr_suspension/core/config.py -> <prefix>
-    if len(here.parents) > 5:
-        out.append(here.parents[5] / 'share' / PACKAGE)
-    return out
-
-
-def share_dir(sub='config'):
-    """Return the first data directory holding ``sub`` (``'config'`` or ``'msg_defs'``)."""
-    tried = []
-    for base in share_candidates():
-        if (base / sub).is_dir():
-            return base / sub
-        tried.append(str(base / sub))
-    raise FileNotFoundError(f'cannot find the mr_suspension {sub} directory (tried '
-                            f'{", ".join(tried)}); reinstall the package or set '
-                            'MR_SUSPENSION_CONFIG')
-
-
-def config_dir():
-    """Return the directory holding the packaged YAML parameter sets."""
-    env = os.environ.get('MR_SUSPENSION_CONFIG')
-    if env:
-        return Path(env)
-    return share_dir('config')
-
-
-def available(kind):
-    """Names of the parameter sets of ``kind`` (e.g. ``'vehicles'``)."""
-    if kind not in KINDS:
-        raise ValueError(f'unknown config kind {kind!r}; known: {KINDS}')
-    return sorted(p.stem for p in (config_dir() / kind).glob('*.yaml'))
-
-
-def load_yaml(kind, name_or_path):
-    """Read the mapping of a named parameter set or a YAML file path."""
-    return _load(kind, name_or_path)[0]
-
-
-def _load(kind, name_or_path):
-    """Return ``(mapping, path)`` of a named parameter set or a YAML/JSON file path."""
-    path = Path(str(name_or_path))
-    if path.suffix not in ('.yaml', '.yml', '.json'):
-        path = config_dir() / kind / f'{name_or_path}.yaml'
-    if not path.is_file():
-        names = available(kind) if kind in KINDS else []
-        raise FileNotFoundError(f'no {kind} parameter set {name_or_path!r} ({path}); '
-                                f'available: {names}')
-    try:
-        with open(path, encoding='utf-8') as fh:
-            data = yaml.safe_load(fh)
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ValueError(f'{path}: not valid YAML ({first}); fix the file') from None
-    except IsADirectoryError:
-        raise ValueError(f'{path}: is a directory; give a YAML file') from None
-    if not isinstance(data, dict):
-        raise ValueError(f'{path}: expected a mapping of parameters (key: value lines), got '
-                         f'{type(data).__name__}')
-    data.pop('description', None)
-    data.pop('source', None)
-    return data, path
-
-
-def _build(kind, name, make):
-    """Load ``name`` of ``kind`` and build it with ``make(data, path)``; errors name the file."""
-    data, path = _load(kind, name)
-    try:
-        return make(data, path)
-    except (ValueError, TypeError) as exc:
-        msg = str(exc)
-        raise ValueError(msg if str(path) in msg else f'{path}: {msg}') from None
-
-
-def load_vehicle(name):
-    """Load quarter-car parameters from ``config/vehicles`` (every parameter is required)."""
-    return _build('vehicles', name, lambda d, p: QuarterCarParams.from_dict(d, source=p))
-
-
-def load_damper(name):
-    """Load a damper law and parameters from ``config/dampers`` (key ``law`` selects it).
-
-    A ``model.json`` written by ``mr-suspension diagnose`` also works: its fitted extended
-    damper is used, so simulator and nodes run with the corrected damper.
-    """
-    def make(data, path):
-        if 'damper' in data:
-            data = data['damper']
-        return damper_from_dict(data, source=path)
-    return _build('dampers', name, make)
-
-
-def load_driver(name):
-    """Load current-driver (Wonder Box) and fluid parameters from ``config/drivers``.
-
-    A ``diagnose`` ``model.json`` gives the Wonder Box with the fitted current dynamics.
-    """
-    def make(data, path):
-        if 'current_dynamics' in data:
-            return from_fitted_model(data)
-        return DriverParams.from_dict(data, source=path)
-    return _build('drivers', name, make)
+__all__ = ['available', 'config_dir', 'configure', 'KINDS', 'load_controller', 'load_damper',
+           'load_driver', 'load_vehicle', 'load_yaml', 'PACKAGE', 'share_candidates', 'share_dir']
 
 
 def load_controller(name):
@@ -155,4 +26,25 @@ def load_controller(name):
                 raise ValueError(f'{path}: {key} must be a list of 4 numbers, got '
                                  f'{data[key]!r}')
         return ControllerParams.from_dict(data)
-    return _build('controllers', name, make)
+    return build_set('controllers', name, make)
+
+
+def configure(controller, car=None, damper=None, driver=None, **gains):
+    """Return the controller of a corner: set or params, gains overridden, plant knowledge.
+
+    ``controller``: a ``config/controllers`` name, a bare law name, a mapping or
+    :class:`~mr_suspension.control.laws.ControllerParams`; ``gains``: any fields of
+    :data:`~mr_suspension.control.laws.GAIN_DESCRIPTIONS`; ``car``, ``damper``, ``driver`` as
+    in :meth:`~mr_suspension.control.laws.ControllerParams.with_plant`. This is what the
+    controller node and the evaluation use, so both run the same law with the same knowledge.
+    """
+    if isinstance(controller, str):
+        if controller in LAW_IDS and controller not in available('controllers'):
+            controller = ControllerParams(law=controller)
+        else:
+            controller = load_controller(controller)
+    elif isinstance(controller, dict):
+        controller = ControllerParams.from_dict(controller)
+    if gains:
+        controller = ControllerParams.from_dict({**controller.to_dict(), **gains})
+    return controller.with_plant(car, damper, driver)

@@ -13,6 +13,7 @@ import time
 import numpy as np
 import yaml
 
+from mr_suspension.cli_common import add_plant_arguments, output_dir, run_command
 from mr_suspension.control.laws import LAW_IDS
 from mr_suspension.core import config as cfg
 from mr_suspension.core.frequency import sine_dwell_gains
@@ -60,17 +61,6 @@ def _laws(text):
     if text in (None, '', 'all'):
         return list(runner.DEFAULT_LAWS)
     return [s.strip() for s in text.split(',') if s.strip()]
-
-
-def add_plant_arguments(parser):
-    """Add ``--vehicle``, ``--damper`` and ``--driver`` (the corner of ``core.corner``)."""
-    parser.add_argument('--vehicle', default='city_car',
-                        help='config/vehicles name or YAML path (default: %(default)s)')
-    parser.add_argument('--damper', default='rd1005_bingham',
-                        help='config/dampers name, YAML path or a model.json fitted by '
-                             'diagnose (default: %(default)s)')
-    parser.add_argument('--driver', default='wonder_box',
-                        help='config/drivers name or YAML path (default: %(default)s)')
 
 
 def add_arguments(parser):
@@ -182,7 +172,6 @@ def evaluate(args, log=print):
         overrides.setdefault('*', {})['estimation'] = args.estimation
     names = scn.expand(args.scenarios)
     studies_ = _studies(args.study)
-    from mr_suspension.cli import output_dir
     out = output_dir(args.out)
     common = {'vehicle': args.vehicle, 'damper': args.damper, 'driver': args.driver}
     study_road = 'bump' if args.light else 'iso_C_20'
@@ -343,7 +332,6 @@ def main(argv=None):
     if not argv or argv[0] != 'evaluate':
         argv = ['evaluate'] + argv
     args = parser.parse_args(argv)
-    from mr_suspension.cli import run_command  # one-line errors, exit code 2
     code = run_command(args)
     if code:
         raise SystemExit(code)  # as argparse's own errors: the caller exits with the code

@@ -14,9 +14,9 @@ import time
 import numpy as np
 import yaml
 
+from mr_suspension.cli_common import add_plant_arguments, output_dir
 from mr_suspension.core import config as cfg
 from mr_suspension.evaluation import scenarios as scn, tune
-from mr_suspension.evaluation.cli import add_plant_arguments
 
 EPILOG = """\
 objective (road-set mean, each road normalised by the softest passive setting):
@@ -95,7 +95,6 @@ def _laws(text):
 
 def run_tune(args, log=print):
     """Run the ``tune`` command; return 0."""
-    from mr_suspension.cli import output_dir
     if args.workers < 0:
         raise ValueError(f'--workers must be >= 0, got {args.workers}')
     if args.maxiter < 1:

@@ -6,13 +6,14 @@ Standalone: ``python -m mr_suspension.identification.cli diagnose DATA... --out 
 import argparse
 from pathlib import Path
 import sys
-import time
 import warnings
 
 import numpy as np
 
+from mr_suspension.cli_common import output_dir, run_command
 from mr_suspension.identification import data as dataio
-from mr_suspension.identification import diagnose, engine, model_io, report, synthetic
+from mr_suspension.identification import engine, fleet, model_io, synthetic
+from mr_suspension.identification.pipeline import diagnose_to_dir
 
 LOAD_HELP = ('Column/unit options: --columns force=F,time=t maps file columns (or bag topics) '
              'to quantities; --units displacement=mm,force=kN converts to SI.')
@@ -71,29 +72,6 @@ def _diagnose_settings(args):
                                f'{", ".join(engine.ALL_EFFECTS)}')
     from mr_suspension.core.config import load_driver
     return opts, effects, args.folds, load_driver(args.driver)
-
-
-def diagnose_to_dir(paths, out_dir, opts, effects, n_folds, nominal, validate=(),
-                    make_plots=True, progress=None, on_load=None):
-    """Load ``paths`` (one damper's records), diagnose, write the report into ``out_dir``.
-
-    What ``diagnose`` does after parsing its options (``diagnose-fleet`` runs it once per
-    record set). ``on_load(warnings)`` is called with the input warnings once the records are
-    loaded. Returns ``(report dict, DiagnosisResult, input warnings)``.
-    """
-    t0 = time.time()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter('always')
-        records = dataio.load_records(paths, opts)
-        validate = dataio.load_records(validate, opts) if validate else []
-    notes = [str(w.message) for w in caught]
-    if on_load is not None:
-        on_load(notes)
-    res = diagnose.Diagnosis(effects=effects, n_folds=n_folds, nominal_driver=nominal,
-                             progress=progress).fit(records)
-    rep, _ = report.write(res, records, out_dir, validate, time.time() - t0,
-                          make_plots=make_plots, input_warnings=notes)
-    return rep, res, notes
 
 
 def register(subparsers):
@@ -197,7 +175,6 @@ def _register_vehicle(subparsers):
 
 def cmd_diagnose_vehicle(args):
     """Run ``diagnose-vehicle``."""
-    from mr_suspension.cli import output_dir
     from mr_suspension.identification import vehicle
     output_dir(args.out)
     effects = tuple(e.strip() for e in args.effects.split(',') if e.strip())
@@ -221,7 +198,6 @@ def cmd_diagnose_vehicle(args):
 
 def cmd_diagnose(args):
     """Run ``diagnose``."""
-    from mr_suspension.cli import output_dir
     output_dir(args.out)
     opts, effects, folds, nominal = _diagnose_settings(args)
     bar = None
@@ -273,8 +249,6 @@ def cmd_diagnose(args):
 def cmd_diagnose_fleet(args):
     """Run ``diagnose-fleet``: one diagnosis per record set, reports and a fleet table."""
     from mr_suspension import parallel
-    from mr_suspension.cli import output_dir
-    from mr_suspension.identification import fleet
 
     out = output_dir(args.out)
     opts, effects, folds, nominal = _diagnose_settings(args)
@@ -379,7 +353,6 @@ def main(argv=None):
     sub = ap.add_subparsers(dest='command', required=True)
     register(sub)
     args = ap.parse_args(argv)
-    from mr_suspension.cli import run_command  # one-line errors, exit code 2
     return run_command(args)
 
 

@@ -25,6 +25,10 @@ import warnings
 import numpy as np
 from scipy import io as sio
 
+from mr_suspension.identification import sensors
+from mr_suspension.identification.errors import DataError
+from mr_suspension.identification.sensors import derive_velocity
+
 
 CANONICAL = ('time', 'displacement', 'velocity', 'force', 'current_command', 'voltage_command',
              'current', 'temperature')
@@ -45,10 +49,6 @@ NO_MOTION = 1e-4         # [m] 1-99 % displacement span below which nothing move
 NO_MOTION_V = 1e-4       # [m/s] velocity RMS below which nothing moved
 VRTHS_TXT = re.compile(r'(\d+(?:x\d+)?)mm(\d+(?:x\d+)?)Hz(\d+(?:x\d+)?)A', re.IGNORECASE)
 VRTHS_MAT_CURRENTS = (0.2, 0.4, 0.6, 0.8, 1.0)
-
-
-class DataError(ValueError):
-    """Raised for unusable input data, with a message saying what to fix."""
 
 
 @dataclass(frozen=True)
@@ -140,13 +140,6 @@ def parse_mapping(items, what):
     return out
 
 
-def derive_velocity(x, dt, cutoff=25.0, order=2):
-    """Velocity from displacement: zero-phase Butterworth (``order``, ``cutoff`` Hz) + gradient."""
-    from mr_suspension.identification import sensors
-
-    return np.gradient(sensors.lowpass(x, dt, cutoff, order), dt)
-
-
 def _grid_mask(base, row_mask, gap_mask, n):
     """Usable samples of the uniform grid from the ``n`` input rows' ``row_mask``."""
     row_mask = np.broadcast_to(np.asarray(row_mask, dtype=bool), (n,))
@@ -180,8 +173,6 @@ def _derived_pred(x, dt, cut, opts, vsrc, mask):
     ladder from the motion band's ``cut`` down, fused with past, centred and future local
     quadratic fits); None with the user's cut-off or none.
     """
-    from mr_suspension.identification import sensors
-
     if opts.velocity_cutoff or cut is None:
         return None, vsrc
     noise = sensors.velocity_noise(x, None, dt)
@@ -197,8 +188,6 @@ def velocity_edge(cutoff, dt, n):
     Half a period of the cut-off, ``ceil(0.5 / (cutoff dt))``; 0 without a low-pass or for a
     record shorter than 40 times that.
     """
-    from mr_suspension.identification import sensors
-
     if cutoff is None or not cutoff < sensors.LOWPASS_MAX / dt:
         return 0
     k = int(math.ceil(0.5 / (cutoff * dt)))
@@ -207,8 +196,6 @@ def velocity_edge(cutoff, dt, n):
 
 def velocity_band(x, dt, opts):
     """Cut-off [Hz] and filter order for velocities: the user's, else the motion band's."""
-    from mr_suspension.identification import sensors
-
     if opts.velocity_cutoff:
         return opts.velocity_cutoff, 2
     return sensors.motion_cutoff(x, dt), 4
@@ -293,8 +280,6 @@ def build_record(name, cols, opts=None, meta=None):
     too many NaN/spikes, no motion and implausible units; warns for every sensor finding (see
     ``sensors``), time read as ms and suspicious scales. Masked samples are linearly filled.
     """
-    from mr_suspension.identification import sensors
-
     opts = opts or LoadOptions()
     cols = dict(cols)
     if not opts.need_force:

@@ -161,8 +161,8 @@ def run_set(settings, rset):
     """
     import json
 
-    from mr_suspension.identification import cli as idcli
     from mr_suspension.identification import diagnose
+    from mr_suspension.identification.pipeline import diagnose_to_dir
 
     t0, c0 = time.time(), time.process_time()
     if settings.jobs:
@@ -173,7 +173,7 @@ def run_set(settings, rset):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter('always')
             try:
-                rep, _, notes = idcli.diagnose_to_dir(
+                rep, _, notes = diagnose_to_dir(
                     list(rset.paths), tmp, settings.load, settings.effects, settings.folds,
                     settings.nominal, make_plots=settings.make_plots)
                 row['records'] = len(rep.get('data', ()))

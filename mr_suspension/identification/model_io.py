@@ -30,6 +30,7 @@ from mr_suspension.core.driver import fitted_dynamics
 from mr_suspension.core.extended import ExtendedDamperParams
 from mr_suspension.identification import data as dataio
 from mr_suspension.identification import engine
+from mr_suspension.identification.denoise import denoise_current
 
 FORMAT = 'mr_suspension.fitted_damper/1'
 INPUT_MAPS = {
@@ -225,8 +226,7 @@ def predict(model, record):
     record = dataio.for_prediction(record)  # as Diagnosis.predict
     if model.get('driver'):
         # As in the fit: a measured coil current is cleaned by the command through the
-        # fitted driver (diagnose.denoise_current).
-        from mr_suspension.identification.diagnose import denoise_current
+        # fitted driver.
         record = denoise_current(record, model['driver'])
     f = engine.simulate(record, params, fitted_dynamics(model['current_dynamics']))
     hedge = model.get('hedge')

@@ -25,6 +25,8 @@ import math
 import numpy as np
 from scipy import ndimage, signal
 
+from mr_suspension.identification.errors import DataError
+
 # Magnitudes no rig sensor reports in SI units (a value beyond is a glitch, not a measurement).
 LIMITS = {'force': 1e7, 'displacement': 100.0, 'velocity': 1e3, 'current': 1e3,
           'current_command': 1e3, 'voltage_command': 1e4, 'temperature': 1e4}
@@ -433,6 +435,11 @@ def _padlen(n, fs, cutoff, order):
     return int(min(n - 1, max(15, 3.0 * fs / cutoff)))
 
 
+def derive_velocity(x, dt, cutoff=25.0, order=2):
+    """Velocity from displacement: zero-phase Butterworth (``order``, ``cutoff`` Hz) + gradient."""
+    return np.gradient(lowpass(x, dt, cutoff, order), dt)
+
+
 BAND_SNR = 10.0      # spectrum above this many times the white-noise level: motion
 BAND_FACTOR = 1.6    # cut-off = this x the motion band's edge (4th-order zero-phase: < 1.2 %)
 BAND_MIN = 5.0       # [Hz] lowest automatic cut-off
@@ -769,8 +776,6 @@ def velocity_check(x, v, dt, cutoff=25.0, mask=None, order=2):
     derived velocity replaces it.
     Returns ``(velocity to use, finding or None)``.
     """
-    from mr_suspension.identification.data import DataError, derive_velocity
-
     x = np.asarray(x, dtype=float)
     v = np.asarray(v, dtype=float)
     n = x.size

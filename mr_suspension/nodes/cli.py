@@ -4,7 +4,7 @@ import json
 from pathlib import Path
 import shutil
 
-from mr_suspension.cli import road_spec_from_args as road_spec
+from mr_suspension.cli_common import road_spec_from_args as road_spec
 from mr_suspension.nodes.launch import DEFAULT_ROAD, run_node_set
 
 LABELS = {'body_acc_rms': ('body acc. RMS', 'm/s²', '.4f'),
