@@ -9,6 +9,7 @@ import warnings
 
 import numpy as np
 import pytest
+import truthcases
 
 from mr_suspension.core.config import load_driver
 from mr_suspension.identification import data as dataio
@@ -92,14 +93,15 @@ def test_channel_delay_alone_is_a_sensor_finding():
 
 
 def test_force_lead_below_a_decimated_sample_is_judged_at_the_full_rate():
-    """Benchmark seed 0 case 30: a Bouc-Wen damper (truth integrator), the force leading 2.4 ms.
+    """A Bouc-Wen damper (truth integrator), the force channel leading by 1.6-3.4 ms.
 
-    0.6 of a 250 Hz step: on top of the loop the lead lost at the search rate (fold gains
-    0.16, 0.79, 0.78, -0.83, 0.83; t 1.1) and the model stayed at 15 floors on an unseen
-    record; at the full rate it gains 95-98 % in every fold.
+    The lead is a fraction of a 250 Hz search step: on top of the damper's loop it must be
+    judged at the full rate, named as a sensor delay of the truth's size, and the model must
+    predict an unseen record of the same damper near its noise floor.
     """
-    case = cases.make_case(30, (), sensor_faults=None, duration=12.0, measured_current=None)
-    assert 'channel_delay' in case.sensor['spec'].faults
+    case = truthcases.case(1010, (), shape='bouc_wen', sensor_faults=('channel_delay',),
+                           duration=12.0, measured_current=True)
+    assert -3.4e-3 < case.sensor['spec'].force_delay < -1.6e-3
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
     assert 'channel_delay' in res.causes and 'hysteresis' in res.causes
@@ -129,20 +131,23 @@ def test_force_lead_behind_a_dead_time_and_a_series_spring_is_found_along_their_
     assert est.score(_record(unseen.columns)) < 1.5 * cases.transfer_floor(case, unseen)
 
 
-@pytest.mark.parametrize('seed, shape, rel',
-                         [(100300, 'algebraic', 0.05), (225, 'arctan', 0.15)])
-def test_a_spring_named_with_the_static_shape_where_a_loop_stood_for_it(seed, shape, rel):
-    """Benchmark seed 1 case 297 and seed 0 case 225: a yield shape behind a series spring.
+@pytest.mark.parametrize('n, kwargs, k_range, rel', [
+    (19002, {'shape': 'algebraic', 'strength': 0.9, 'sensor_faults': ('no_velocity',),
+             'measured_current': False}, (5e4, 1.4e5), 0.05),
+    (3000, {'shape': 'arctan', 'strength': 0.05, 'sensor_faults': (), 'measured_current': True},
+     (2e7, 5e7), 0.15)])
+def test_a_spring_named_with_the_static_shape_where_a_loop_stood_for_it(n, kwargs, k_range,
+                                                                        rel):
+    """A static yield shape behind a series spring is named so, not as a pre-yield loop.
 
-    297: algebraic yield, 8.3e4 N/m, no velocity channel; named the spring and a pre-yield
-    loop (5.8 floors on an unseen record). 225: arctan yield, 5e7 N/m; named a 30 um loop
-    carrying 7 % of the yield force and the static shape (4.09 floors). The spring and the
-    static shape fitted on the simulated error (the spring started at the loop's pre-yield
-    stiffness where none was named) win on the inner folds.
+    An algebraic yield behind a soft spring (5e4-1.4e5 N/m) measured without a velocity
+    channel, and an arctan yield behind a stiff one (2e7-5e7 N/m). A loop can stand for
+    either (its pre-yield stiffness for the spring, its rounded corner for the shape); the
+    spring and the static shape fitted on the simulated error must win on the inner folds,
+    with the truth's stiffness and an unseen record near its floor.
     """
-    case = cases.make_case(seed, ('series_stiffness',), sensor_faults=None, duration=12.0,
-                           measured_current=None)
-    assert case.truth.shape == shape
+    case = truthcases.case(n, ('series_stiffness',), duration=12.0, **kwargs)
+    assert k_range[0] < case.truth.k_series < k_range[1]
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
     assert set(res.physical_causes) == {'series_stiffness', 'yield_shape'}
@@ -152,14 +157,16 @@ def test_a_spring_named_with_the_static_shape_where_a_loop_stood_for_it(seed, sh
 
 
 def test_a_soft_spring_and_a_gas_spring_are_not_named_a_loop():
-    """Benchmark seed 0 case 4: algebraic yield behind 2.9e5 N/m, with a strong gas spring.
+    """An algebraic yield behind a 2-4e5 N/m series spring, with a strong gas spring.
 
-    The gas spring was dropped by a backward check and a 52 mm pre-yield loop (wider than the
-    stroke: a stiffness) took its place beside the spring (6.04 floors on an unseen record).
-    Judged by output error, the static shape with the gas spring wins where the loop stood.
+    A pre-yield loop wider than the stroke is a stiffness and can stand for the gas spring
+    beside the series spring. Judged by output error, both springs are named, no loop, the
+    series stiffness is the truth's and an unseen record is predicted near its floor.
     """
-    case = cases.make_case(4, ('series_stiffness', 'gas_spring'), sensor_faults=None,
-                           duration=12.0, measured_current=None)
+    case = truthcases.case(4006, ('series_stiffness', 'gas_spring'), shape='algebraic',
+                           strength={'series_stiffness': 0.75, 'gas_spring': 0.95},
+                           sensor_faults=(), duration=12.0, measured_current=True)
+    assert 2e5 < case.truth.k_series < 4e5 and case.contributions['gas_spring'] > 8.0
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
     assert {'series_stiffness', 'gas_spring'} <= set(res.physical_causes)
@@ -199,21 +206,37 @@ def test_gas_spring_follows_a_strong_polytropic_accumulator():
 
 
 def test_a_strong_gas_spring_beside_a_loop_gets_its_cubic_term():
-    """Benchmark seed 1 case 149: Bouc-Wen damper, asymmetry, gas column 2-3x the stroke.
+    """Bouc-Wen damper with asymmetry and a strong gas spring, its column 2-2.5x the stroke.
 
-    With the quadratic gas spring the training error stayed 4.6x the noise (a cubic-shaped
-    residual over the stroke) and an unseen record came out at 3.76 floors; the cubic term,
-    freed on top of the named gas spring, pays on the inner folds.
+    The polytropic accumulator ``-p0 A ((V0 / (V0 + A x))^n - 1)`` bends beyond a quadratic
+    over such a stroke: the best quadratic through the truth's curve misses it by several %
+    of its span, a cubic-shaped residual far above the noise. The cubic term, freed on top
+    of the named gas spring, must pay: the fitted curve follows the truth's at least twice
+    as closely as any quadratic can, and an unseen record is predicted near its floor.
     """
-    case = cases.make_case(100003 + 149, ('gas_spring', 'direction_asymmetry'),
-                           sensor_faults=None, duration=12.0, measured_current=None)
-    assert case.truth.shape == 'bouc_wen'
+    case = truthcases.case(6012, ('gas_spring', 'direction_asymmetry'), shape='bouc_wen',
+                           strength={'gas_spring': 1.0, 'direction_asymmetry': 0.8},
+                           sensor_faults=(), duration=12.0, measured_current=True)
+    tr = case.truth
+    rec = _record(case.columns)
+    x = rec.displacement[rec.mask]
+    assert 2.0 < tr.gas_volume / tr.gas_area / np.max(np.abs(x)) < 2.5
+    assert case.contributions['gas_spring'] > 20.0
     est = diagnose.Diagnosis()
-    res = est.fit([_record(case.columns)])
+    res = est.fit([rec])
     assert {'gas_spring', 'direction_asymmetry'} <= set(res.physical_causes)
-    step = [s for s in res.steps if s.get('stage') == 'gas spring cubic term (nested)']
-    assert step and step[0]['candidates']['gas_cubic']['accepted']
-    assert res.final.params().k_gas3 != 0.0
+    p = res.final.params()
+    assert p.k_gas3 != 0.0
+    with np.errstate(all='raise'):
+        truth = -tr.gas_p0 * tr.gas_area * ((tr.gas_volume / (tr.gas_volume + tr.gas_area * x))
+                                            ** tr.gas_n - 1.0)
+
+    def miss(curve):  # the offset belongs to f0
+        return np.max(np.abs(curve - curve.mean() - truth + truth.mean()))
+
+    quadratic = miss(np.polyval(np.polyfit(x, truth, 2), x))
+    assert quadratic > 0.03 * np.ptp(truth)
+    assert miss(p.k_gas1 * x + p.k_gas2 * x ** 2 + p.k_gas3 * x ** 3) < 0.5 * quadratic
     unseen = case.unseen()
     assert est.score(_record(unseen.columns)) < 2.0 * cases.transfer_floor(case, unseen)
 
@@ -240,15 +263,17 @@ def test_output_error_fit_recovers_a_soft_spring_and_the_yield_shape():
 
 
 def test_delay_seen_only_at_the_full_rate_comes_before_the_physics_it_hid():
-    """Benchmark seed 1 case 66: no damper effect, the force 0.63 ms behind (stamps rounded).
+    """No damper effect, the force 0.4-0.9 ms behind, time stamps rounded (truth sensors).
 
-    At 250 Hz the delay gained 0.26 at fold t 1.4 (one fold 38 % worse, on the decimated
-    current edges), a pre-yield loop and a 2 ms dead time took its place, and the delay then
-    gained nothing on top of them; on the full-rate baseline it gains 0.58 at t 10.
+    A delay of a fraction of a 250 Hz search step barely shows at the search rate, where a
+    pre-yield loop or a dead time could take its place. Judged on the full-rate baseline, the
+    delay is named as a sensor finding with the truth's size, no loop is named, and an
+    unseen record is predicted near its floor.
     """
-    case = cases.make_case(100003 + 66, (), sensor_faults=None, duration=12.0,
-                           measured_current=None)
-    assert 'channel_delay' in case.sensor['spec'].faults
+    case = truthcases.case(17, (), sensor_faults=('channel_delay', 'time_rounding'),
+                           duration=12.0, measured_current=None)
+    spec = case.sensor['spec']
+    assert 0.4e-3 < spec.force_delay < 0.9e-3 and spec.time_quantum > 0.0
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
     assert 'channel_delay' in res.causes and 'hysteresis' not in res.causes
@@ -272,8 +297,8 @@ def _filtered_force_columns(f_ch):
 def test_anti_alias_filter_alone_is_a_sensor_finding_not_a_current_lag():
     """Effect-free damper, ideal driver; the force through a causal 150 Hz Butterworth.
 
-    Before the full-rate filter stage the roll-off at every current edge was named
-    ``current_lag`` (tau 1.6 ms) on top of a 1.4 ms ``channel_delay``.
+    The roll-off at every current edge looks like a ``current_lag`` on top of a delay: the
+    filter must be named at its cut-off as a sensor finding, and no physical cause.
     """
     cols = _filtered_force_columns(150.0)
     res = diagnose.run([_record(cols)])
@@ -285,29 +310,31 @@ def test_anti_alias_filter_alone_is_a_sensor_finding_not_a_current_lag():
 
 
 def test_channel_delay_with_a_sample_of_dead_time_is_not_named_a_filter():
-    """A 1.17 ms force-channel delay, command only (the truth's driver lag: a sample late).
+    """A 1.4 ms force-channel delay and a clipping load cell, the coil current not measured.
 
-    The filter stage ran before the current timing, and a 185 Hz low-pass plus 0.5 ms drew
-    the delay and part of the dead time; named with the dead time, the filter must pay over
-    its nested delay, and here it does not.
+    Seen through the command, the truth's driver lag puts the force of every current edge
+    about a sample late. A low-pass whose group delay matches (about 160 Hz) plus a
+    sub-millisecond shift can draw the delay and part of that dead time; a pure shift must
+    stay a ``channel_delay`` of the truth's size, not a ``channel_filter``.
     """
-    case = cases.make_case(100147, (), sensor_faults=None, duration=12.0,
-                           measured_current=None)
-    assert case.sensor['spec'].faults == ('clipping', 'channel_delay')
+    case = truthcases.case(91, (), sensor_faults=('clipping', 'channel_delay'), duration=12.0,
+                           measured_current=False)
+    assert 0.9e-3 < case.sensor['spec'].force_delay < 1.5e-3
     res = diagnose.run([_record(case.columns)])
     assert 'channel_delay' in res.causes and 'channel_filter' not in res.causes
     assert res.final.eta['delay'] == pytest.approx(case.sensor['spec'].force_delay, abs=1e-4)
 
 
 def test_filter_reduced_to_its_delay_keeps_one_delay():
-    """A 3.9 ms channel delay on a Bouc-Wen damper with a current lag (truth integrator).
+    """A 2.5-4.5 ms channel delay on a Bouc-Wen damper with a current lag (truth integrator).
 
-    Delay and filter were both kept until the current lag was named; the filter reduced to
-    its nested delay must leave one ``channel_delay``, not two.
+    A filter reduced to its nested delay must leave one ``channel_delay``, not two, and no
+    filter; the current lag is named beside it.
     """
-    case = cases.make_case(236, ('current_lag',), sensor_faults=None, duration=12.0,
+    case = truthcases.case(8, ('current_lag',), shape='bouc_wen',
+                           sensor_faults=('channel_delay',), duration=12.0,
                            measured_current=None)
-    assert case.sensor['spec'].faults == ('channel_delay',)
+    assert 2.5e-3 < case.sensor['spec'].force_delay < 4.5e-3
     res = diagnose.run([_record(case.columns)])
     assert len(set(res.causes)) == len(res.causes)
     assert 'channel_delay' in res.causes and 'channel_filter' not in res.causes
@@ -316,20 +343,25 @@ def test_filter_reduced_to_its_delay_keeps_one_delay():
 
 
 def test_a_filter_worse_than_none_at_every_cut_off_is_not_named():
-    """A channel delay on a Bouc-Wen damper with a gas spring; no filter in the truth.
+    """A 0.8-3 ms channel delay on a Bouc-Wen damper with a gas spring; no filter in the truth.
 
-    Every cut-off was worse than no filter, so the filter's fit ended at f_ch = 0 (off), yet
-    the refit of the other parameters gained 14 % (t 4.3) and a "filter" of 0 Hz was named.
+    Where every cut-off is worse than no filter, the filter's fit ends off (f_ch = 0) and the
+    refit of the other parameters alone must not name a "filter"; the delay is named.
     """
-    case = cases.make_case(100070, ('gas_spring',), sensor_faults=None, duration=12.0,
+    case = truthcases.case(21, ('gas_spring',), shape='bouc_wen',
+                           sensor_faults=('channel_delay',), duration=12.0,
                            measured_current=None)
-    assert case.sensor['spec'].force_filter_hz == 0.0
+    spec = case.sensor['spec']
+    assert spec.force_filter_hz == 0.0 and 0.8e-3 < spec.force_delay < 3e-3
     res = diagnose.run([_record(case.columns)])
     assert 'channel_filter' not in res.causes and 'channel_delay' in res.causes
 
 
 def test_anti_alias_filter_with_a_dead_time_stays_a_filter():
-    """150 Hz anti-alias filter and a one-sample dead time: the filter pays over a delay."""
+    """150 Hz anti-alias filter and a one-sample dead time: the filter pays over a delay.
+
+    Named: the filter at its cut-off and the dead time, no ``channel_delay`` in its place.
+    """
     cols = _filtered_force_columns(150.0)
     # The command is logged one sample early: the force answers a sample after it.
     cmd = cols['current_command']
@@ -337,35 +369,34 @@ def test_anti_alias_filter_with_a_dead_time_stays_a_filter():
     res = diagnose.run([_record(cols)])
     assert set(res.causes) == {'channel_filter', 'current_delay'}
     assert res.channel_filter == pytest.approx(150.0, rel=0.15)
-    check = [s for s in res.steps if 'nested delay' in s.get('stage', '')]
-    assert len(check) == 1 and check[0]['candidates']['channel_filter']['accepted']
+    assert res.final.dynamics()['dead_time'] == pytest.approx(1e-3, abs=0.5e-3)
 
 
 def test_anti_alias_filter_is_judged_against_the_current_lag_it_draws():
-    """A 287 Hz anti-alias filter on a Bouc-Wen damper with a loop and a saturating current.
+    """A 200-330 Hz anti-alias filter on a Bouc-Wen damper with a loop and a saturating field.
 
-    No lagging delay is kept, so the filter was never judged, and the full-rate timing stage
-    named its roll-off at the current edges ``current_lag``. Fitted on the same parent as the
-    rival of that lag, the filter explains more: it is named and the lag is not.
+    The filter's roll-off at every current edge looks like a current lag. Judged against
+    that lag, the filter explains more: it is named at the truth's cut-off as a sensor
+    finding, the lag is not, and the physical causes are the truth's.
     """
-    case = cases.make_case(257, ('current_saturation', 'hysteresis'), sensor_faults=None,
-                           duration=12.0, measured_current=None)
+    case = truthcases.case(3, ('current_saturation', 'hysteresis'), shape='bouc_wen',
+                           sensor_faults=('anti_alias',), duration=12.0,
+                           measured_current=None)
     spec = case.sensor['spec']
-    assert 'anti_alias' in spec.faults and spec.force_delay == 0.0
+    assert 200.0 < spec.force_filter_hz < 330.0 and spec.force_delay == 0.0
     res = diagnose.run([_record(case.columns)])
     assert 'channel_filter' in res.causes and res.locations['channel_filter'] == 'sensor'
     assert res.channel_filter == pytest.approx(spec.force_filter_hz, rel=0.1)
     assert set(res.physical_causes) == {'hysteresis', 'current_saturation'}
-    rival = [s for s in res.steps if 'rival' in s.get('stage', '')]
-    assert len(rival) == 1 and rival[0]['added'] == 'channel_filter'
+    assert not {'current_lag', 'current_lag_asymmetric'} & set(res.causes)
 
 
 @pytest.mark.parametrize('seed', [3, 4])
 def test_thermal_fade_in_a_12_s_record_is_testable_and_named(seed):
     """A strong thermal fade (truth integrator: heat from the dissipated power) in 12 s.
 
-    Records under 15 s had thermal fade marked untestable; the benchmark's 12 s records hid
-    fades of up to 15x the noise. The effect-free record of the same damper names no fade.
+    A 12 s record heats the damper enough: the fade must be testable and named first. The
+    effect-free record of the same damper names no fade.
     """
     for effects, named in ((('thermal_fade',), True), ((), False)):
         case = cases.make_case(seed, effects, sensor_faults=(), duration=12.0,
@@ -375,6 +406,31 @@ def test_thermal_fade_in_a_12_s_record_is_testable_and_named(seed):
         assert 'thermal_fade' not in res.untestable
         assert ('thermal_fade' in res.physical_causes) is named
         assert res.physical_causes[:1] == (('thermal_fade',) if named else ())
+
+
+@pytest.mark.parametrize('tau', [0.010, 0.020, 0.030])
+def test_a_pure_driver_lag_is_not_also_a_driver_delay(tau):
+    """Measured coil current: the nominal dead time, a slower first-order lag (10-30 ms).
+
+    Dead time and lag trade at the scale of one sample; a dead time fitted a sample off the
+    nominal is no finding unless holding it at the nominal costs the fit materially.
+    """
+    cols, _ = _sine_record(5.0, seed=9)
+    dt = 1e-3
+    nominal = load_driver('wonder_box')
+    cmd = cols['current_command']
+    a = np.exp(-dt / tau)
+    lag = np.empty_like(cmd)
+    y = cmd[0]
+    for k, u in enumerate(cmd):
+        y = u + (y - u) * a
+        lag[k] = y
+    n = int(round(nominal.dead_time / dt))
+    coil = np.concatenate([np.full(n, lag[0]), lag[:-n]]) if n else lag
+    cols['current'] = coil + 0.002 * np.random.default_rng(2).standard_normal(coil.size)
+    drv = diagnose.identify_driver([_record(cols)], nominal)
+    assert drv['deviations'] == ['driver_lag']
+    assert drv['tau_rise'] == pytest.approx(tau, rel=0.2)
 
 
 def test_driver_dead_time_is_a_named_driver_cause():
@@ -443,7 +499,6 @@ def test_dead_time_below_the_search_step_is_found_at_the_full_rate(dead_samples)
     assert res.physical_causes == ('current_delay',)
     dyn = res.final.dynamics()
     assert dyn['dead_time'] == pytest.approx(dead_samples * 1e-3, abs=1e-9)
-    assert any(s.get('stage') == 'fine timing (full rate)' for s in res.steps)
     assert res.heldout['extended_nrmse'] < 1.15 * 3.0 / np.std(cols['force'])
 
 
@@ -504,18 +559,16 @@ def test_loop_share_of_the_yield_force_is_recovered_once_the_loop_is_named(stren
     """Truth: a Bouc-Wen loop carrying a share w of the yield force beside a static yield.
 
     The truth's loop (its own integrator, ``z / z_max`` with beta, gamma) is not the fit's
-    normalised loop. On this mixed programme the share is testable: the selection's loop
-    candidates carry it, and the nested refit once the loop is named polishes it (where the
-    share is not testable that refit is the only place it is freed). A share of 0.64
-    (strength 0.8) recovered within 10 %, a share of 1 (strength 0.95) left above 0.9.
+    normalised loop. On this mixed programme the share is testable (no note says otherwise):
+    a share of 0.64 (strength 0.8) is recovered within 10 %, a share of 1 (strength 0.95)
+    stays above 0.9.
     """
     case = cases.make_case(2, ('hysteresis',), sensor_faults=(), duration=10.0,
                            shape='bingham_tanh', strength=strength, measured_current=False)
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
     assert res.physical_causes == ('hysteresis',)
-    step = [s for s in res.steps if s.get('stage', '').startswith('hysteresis share')]
-    assert len(step) == 1 and 'hysteresis_share' in step[0]['candidates']
+    assert 'hysteresis_share' not in res.notes
     w = res.final.eta['hyst_weight']
     if case.truth.hyst_weight < 0.9:
         assert w == pytest.approx(case.truth.hyst_weight, rel=0.1)
@@ -530,20 +583,21 @@ def test_static_yield_shape_is_judged_beside_a_freed_loop_share():
 
     While the loop carries the whole yield force the static shape draws nothing, so the
     selection keeps ``yield_shape`` and ``hysteresis`` apart. With a share below 1 the
-    static part is drawn again; its shape is judged on top (the algebraic exponent is 2).
-    Since the loop candidates carry their share (stop 26) the shape's gain on top is 0.8 %
-    at fold t 1.8 here, below the bar: it must be judged and found, not necessarily named.
+    static part is drawn again, and its shape is identifiable on top of the named loop and
+    its share (the algebraic exponent is 2). Its gain on top may stay below the naming bar:
+    named or not, the shape fitted on top of the delivered model must find the exponent.
     """
     case = cases.make_case(3, ('hysteresis',), sensor_faults=(), duration=12.0,
                            shape='algebraic', strength=0.8, measured_current=False)
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
     assert res.physical_causes[0] == 'hysteresis'
-    step = [s for s in res.steps if s.get('stage', '').startswith('hysteresis share')]
-    cand = step[0]['candidates']
-    assert 1.5 < cand['yield_shape']['yield_n'] < 2.5
-    if 'yield_shape' in res.physical_causes:
-        assert 1.5 < res.final.eta['yield_n'] < 2.5
+    fin = res.final
+    if 'yield_shape' not in fin.effects:
+        fin = engine.fit(res.dataset, tuple(fin.effects) + ('yield_shape',), start_eta=fin.eta,
+                         start_theta=fin.theta, new=('yield_shape',), sweeps=1,
+                         extra=(engine.SHARE,))
+    assert 1.5 < fin.eta['yield_n'] < 2.5
     assert res.final.eta['hyst_weight'] == pytest.approx(case.truth.hyst_weight, abs=0.1)
     unseen = case.unseen()
     assert est.score(_record(unseen.columns)) < 1.25 * unseen.floor_nrmse
@@ -576,9 +630,10 @@ def test_partial_loop_is_not_read_as_a_force_channel_delay(seed, shape, strength
     """Truth: a Bouc-Wen loop carrying a quarter of the yield force, no sensor fault.
 
     Near every reversal such a loop lags the force like a sub-millisecond channel delay, and
-    no loop with the whole yield force in it draws it: the previous code named a sensor
-    ``channel_delay`` with a gas spring or a thermal fade (unseen / floor 7.5 and 9.6). On a
-    mixed programme the share is testable, and the delay must pay on top of a partial loop.
+    no loop with the whole yield force in it draws it, so a sensor ``channel_delay`` (with a
+    gas spring or a thermal fade) can stand for it. On a mixed programme the share is
+    testable, and the delay must pay on top of a partial loop: no delay, the loop first with
+    the truth's share and length, an unseen record near its floor.
     """
     case = cases.make_case(seed, ('hysteresis',), sensor_faults=(), duration=10.0,
                            shape=shape, strength=strength, measured_current=False)
@@ -774,9 +829,9 @@ def test_yield_exponent_is_searched_with_its_smoothing_velocity():
     """Truth: an arctan yield ``(2/pi) atan(w)`` (truth integrator), no other effect.
 
     The algebraic sigmoid's exponent and v_y trade along a narrow valley (the error doubles
-    within a factor 1.5 in v_y): searched one after the other from the tanh's v_y every
-    exponent looked worse than tanh and the shape was not found (SSE ratio 1.0). The fit
-    must reach the best point of a dense (n, v_y) grid.
+    within a factor 1.5 in v_y): searched one after the other from the tanh's v_y, every
+    exponent can look worse than tanh. The fit must gain over tanh and reach the best point
+    of a dense (n, v_y) grid.
     """
     ds = _arctan_dataset(15)
     base = engine.fit(ds, ())
@@ -792,42 +847,45 @@ def test_yield_exponent_is_searched_with_its_smoothing_velocity():
     assert fit.sse < 1.005 * best
 
 
+def _dead_time_and_asymmetry_case():
+    """Algebraic yield, a 1.0-1.8 ms dead time, rho 0.08-0.2, stamps rounded, command only."""
+    case = truthcases.case(11000, ('current_delay', 'direction_asymmetry'), shape='algebraic',
+                           strength={'current_delay': 0.06, 'direction_asymmetry': 0.5},
+                           sensor_faults=('time_rounding',), duration=12.0,
+                           measured_current=False)
+    assert 1.0e-3 < case.truth.dead_time < 1.8e-3 and 0.08 < abs(case.truth.rho) < 0.2
+    return case
+
+
 @pytest.mark.parametrize('active', [True, False])
 def test_physics_screened_again_on_a_full_rate_timing(monkeypatch, active):
-    """The same damper diagnosed whole: its dead time is a third of a decimated sample.
+    """An algebraic damper whose dead time is a third of a 250 Hz search step, with asymmetry.
 
-    At 250 Hz every candidate was fitted on top of the timing error (``yield_shape`` gain
-    0.29, t 1.9); the full-rate stage named ``current_delay`` (loss 0.52) and nothing was
-    screened again: the model stayed at 2.2 floors on its own record, 5.1 on an unseen one.
-    With the active-block rule the shape is named at 250 Hz, the dead time comes out as a
-    2.5 ms lag beside two causes and is swapped back at the full rate (the model has no room
-    for a fine timing cause); without it, the full-rate screen names the shape.
+    At the search rate every candidate is fitted on top of the timing error; the dead time
+    is found at the full rate, and the static yield shape must still be named, on top of
+    the full-rate timing, with or without the active-block rule of the selection (which lets
+    the shape be named at the search rate already). Named: the truth's dead time and
+    asymmetry and the yield shape, nothing else; an unseen record near its floor.
     """
     if not active:
         monkeypatch.setattr(diagnose, 'N_ACTIVE', 10 ** 6)
-    case = cases.make_case(281, ('current_delay', 'direction_asymmetry'), sensor_faults=None,
-                           duration=12.0, measured_current=None)
+    case = _dead_time_and_asymmetry_case()
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
     assert {'current_delay', 'direction_asymmetry', 'yield_shape'} == set(res.causes)
-    again = [s for s in res.steps if s.get('stage') == 'physics again on the full-rate timing']
-    if not active:
-        assert again and again[0]['candidates']['yield_shape']['accepted']
+    assert res.final.eta['rho'] == pytest.approx(case.truth.rho, abs=0.03)
     unseen = case.unseen()
     assert est.score(_record(unseen.columns)) < 2.0 * cases.transfer_floor(case, unseen)
 
 
 def test_yield_shape_is_polished_from_its_best_grid_point():
-    """Truth: an algebraic yield (truth integrator) behind a 1.3 ms dead time, clean load cell.
+    """Truth: an algebraic yield (truth integrator) behind a 1.0-1.8 ms dead time, at 1 kHz.
 
-    Benchmark seed 0 case 281 at the full rate. The valley of (n, v_y) is narrower than the
-    joint grid's steps (the error grows by half within 10 % in v_y): every grid point lost
-    to the unshaped parent, which stayed the fit (gain 0), while the valley holds 18 % less
-    error. The child must reach the best point of a dense scan about the valley.
+    The valley of (n, v_y) can be narrower than the joint grid's steps, so that every grid
+    point loses to the unshaped parent while the valley holds far less error. Started on the
+    parent, the child must reach the best point of a dense scan about the valley.
     """
-    case = cases.make_case(281, ('current_delay', 'direction_asymmetry'), sensor_faults=None,
-                           duration=12.0, measured_current=None)
-    assert case.truth.shape == 'algebraic'
+    case = _dead_time_and_asymmetry_case()
     ds = engine.Dataset([_record(case.columns)], n_folds=5, outer=True)  # as diagnose's
     parent = engine.fit(ds, ('direction_asymmetry', 'current_delay'))
     held = ('rho', 'dead_time')
@@ -858,19 +916,29 @@ def test_tanh_refit_from_an_algebraic_fit_searches_v_y_afresh(factor):
     assert back.sse < 1.01 * base.sse
 
 
-@pytest.mark.parametrize('k, effects', [(40, ('current_lag', 'hysteresis')),
-                                        (142, ('current_delay', 'series_stiffness'))])
-def test_channel_delay_must_pay_on_top_of_a_loop_and_a_second_lag(k, effects):
-    """Two lags at once: a loop with a current lag; a Bouc-Wen damper behind a soft spring.
+@pytest.mark.parametrize('n, effects, kwargs', [
+    (12000, ('current_lag', 'hysteresis'),
+     {'shape': 'bingham_tanh', 'strength': {'current_lag': 0.55, 'hysteresis': 0.65},
+      'sensor_faults': (), 'measured_current': False}),
+    (13000, ('current_delay', 'series_stiffness'),
+     {'shape': 'bouc_wen', 'strength': {'current_delay': 0.2, 'series_stiffness': 0.9},
+      'sensor_faults': ('no_velocity',), 'measured_current': True})])
+def test_channel_delay_must_pay_on_top_of_a_loop_and_a_second_lag(n, effects, kwargs):
+    """Two lags at once and no channel delay: a force-channel delay must not be named.
 
-    Benchmark cases (``bench_diagnose`` seed 1, cases 40 and 142; truth integrator and
-    sensors). The force lags in two ways, and a channel delay paid on top of either alone
-    (3.7 ms and 16 ms kept; unseen / floor 16 and 40). On a mixed programme the delay must
-    also pay on top of the partial loop and the best other single together.
+    A partial loop with a current lag (8-20 ms); a Bouc-Wen damper behind a soft spring
+    (6e4-1.5e5 N/m) with a dead time, measured without a velocity channel. The force lags
+    the motion in two ways, and a force-channel delay can pay on top of either alone. It
+    must also pay on top of the partial loop and the best other single together, and here
+    it does not: no ``channel_delay``, the truth's effects named (the Bouc-Wen damper's loop
+    with them) and an unseen record near its floor.
     """
-    case = cases.make_case(100003 + k, effects, sensor_faults=None, duration=12.0,
-                           measured_current=None)
-    assert 'channel_delay' not in case.sensor['spec'].faults
+    case = truthcases.case(n, effects, duration=12.0, **kwargs)
+    tr = case.truth
+    if 'hysteresis' in effects:
+        assert 8e-3 < tr.tau_rise < 20e-3 and 0.25 < tr.hyst_weight < 0.5
+    else:
+        assert 6e4 < tr.k_series < 1.5e5 and 1.5e-3 < tr.dead_time < 4e-3
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
     assert 'channel_delay' not in res.causes
@@ -884,13 +952,13 @@ def test_channel_delay_must_pay_on_top_of_a_loop_and_a_second_lag(k, effects):
 def test_hidden_partial_loop_is_a_loop_not_a_series_spring():
     """Truth: a Bouc-Wen loop carrying a quarter of the yield force beside an algebraic yield.
 
-    Benchmark case (``bench_diagnose`` seed 1, case 98; truth integrator and sensors), no
-    channel delay kept. A loop with the whole yield force cannot draw it (gain -4 %), so a
-    stiff series spring and a gas spring were named (unseen / floor 3.95). Where the share is
-    testable the selection's loop candidates carry their share.
+    A loop with the whole yield force cannot draw it, and a stiff series spring (or a gas
+    spring) can stand for the lag it leaves. Where the share is testable the loop candidates
+    carry their share: the loop is named first with the truth's share, no series spring, and
+    an unseen record is predicted near its floor.
     """
-    case = cases.make_case(100003 + 98, ('hysteresis',), sensor_faults=None, duration=12.0,
-                           measured_current=None)
+    case = truthcases.case(14000, ('hysteresis',), shape='algebraic', strength=0.54,
+                           sensor_faults=(), duration=12.0, measured_current=True)
     assert 0.2 < case.truth.hyst_weight < 0.3
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
@@ -901,18 +969,18 @@ def test_hidden_partial_loop_is_a_loop_not_a_series_spring():
     assert est.score(_record(unseen.columns)) < 1.5 * cases.transfer_floor(case, unseen)
 
 
-@pytest.mark.parametrize('k', [43, 277])
-def test_loop_share_must_pay_before_a_loop_candidate_carries_it(k):
-    """Truth: a Bouc-Wen damper (its loop carries the whole yield force) with a saturating field.
+@pytest.mark.parametrize('n, measured', [(15000, True), (16001, False)])
+def test_loop_share_must_pay_before_a_loop_candidate_carries_it(n, measured):
+    """Truth: a Bouc-Wen damper (its loop carries the whole yield force), a saturating field.
 
-    Benchmark cases (``bench_diagnose`` seed 0, cases 43 and 277; truth integrator and
-    sensors). A loop candidate that took its share unjudged absorbed part of the saturation,
-    which was then not named (unseen / floor 1.28 and 2.02). The share is kept only where it
-    pays against ``w_h = 1`` by the selection's rule.
+    A weak saturation (``i_s`` 0.8-4.5 A for a 1 A command). A loop candidate that took a
+    share of the yield force unjudged could absorb part of the saturation; the share is kept
+    only where it pays against ``w_h = 1``. Named: the loop and the saturation; an unseen
+    record near its floor. With and without a measured coil current.
     """
-    case = cases.make_case(k, ('current_saturation',), sensor_faults=None, duration=12.0,
-                           measured_current=None)
-    assert case.truth.shape == 'bouc_wen'
+    case = truthcases.case(n, ('current_saturation',), shape='bouc_wen', strength=0.3,
+                           sensor_faults=(), duration=12.0, measured_current=measured)
+    assert 0.8 < case.truth.i_sat < 4.5
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
     assert {'hysteresis', 'current_saturation'} <= set(res.physical_causes)
@@ -966,17 +1034,17 @@ def test_block_errors_add_up_to_the_fold_errors():
     assert np.allclose(sums, fit.test, rtol=1e-9)
 
 
-@pytest.mark.parametrize('seed', [1, 2, 3])
-def test_spring_and_loop_restarts_leave_a_wrong_k1_valley(seed, monkeypatch):
-    """Bouc-Wen damper (truth integrator) behind a series spring of 5-9e5 N/m.
+@pytest.mark.parametrize('n', [25002, 25003, 25004])
+def test_spring_and_loop_restarts_leave_a_wrong_k1_valley(n, monkeypatch):
+    """Bouc-Wen damper (truth integrator) behind a series spring of a few 1e5 N/m.
 
     Started in the valley of a 4x stiffer spring with the loop's shape at its bound, the
-    coordinate search stays there (training SSE 4-150x that of a start at the truth); the
-    restarts over k1, each with the loop searched anew, reach the truth's k1 (4-12 %). The
-    loop's shape may end in a neighbouring valley: seed 1 at 1.25x the SSE of the start at
-    the truth (a valley at 0.35x, unloading shape r_h = -0.98, lies outside the r_h grid).
+    coordinate search stays there (training SSE several times that of a start at the
+    truth); the restarts over k1, each with the loop searched anew, reach the truth's k1
+    within 15 %. The loop's shape may end in a neighbouring valley (an unloading shape
+    outside the r_h grid), so the SSE may stay up to 1.3x that of the start at the truth.
     """
-    case = cases.make_case(seed, ('series_stiffness',), sensor_faults=(), duration=12.0,
+    case = truthcases.case(n, ('series_stiffness',), sensor_faults=(), duration=12.0,
                            shape='bouc_wen', strength=0.65, measured_current=False)
     t = case.truth
     ds = engine.Dataset([dataio.decimate(_record(case.columns), 4)], outer=True)
@@ -991,59 +1059,56 @@ def test_spring_and_loop_restarts_leave_a_wrong_k1_valley(seed, monkeypatch):
     best = engine.loop_restarts(ds, wrong, engine.K1_STARTS)
     assert best.sse < 1.3 * at_truth.sse
     assert best.eta['k_series'] == pytest.approx(t.k_series, rel=0.15)
-    if seed == 1:  # the restarts on threads (as diagnose runs them) give the same fit
+    if n == 25002:  # the restarts on threads (as diagnose runs them) give the same fit
         monkeypatch.setattr(diagnose, 'JOBS', 2)
         threaded = engine.loop_restarts(ds, wrong, engine.K1_STARTS, mapper=diagnose._map)
         assert threaded.sse == best.sse and threaded.eta == best.eta
 
 
 def test_loop_is_searched_again_at_the_full_rate():
-    """Bouc-Wen damper (truth integrator), force channel 2.4 ms ahead, velocity noise 1.8 %.
+    """Bouc-Wen damper (truth integrator), the force channel 1.6-3.4 ms ahead.
 
     The lead is found at the full rate, after the loop's shape was chosen at 250 Hz on top
-    of the uncorrected skew; refitted only locally, the loop kept an unloading shape of -0.72
-    (truth -0.34) and the unseen record sat at 3.6 floors.
+    of the uncorrected skew; the loop is searched anew once the lead is known, so its
+    exponent and unloading shape are the truth's and an unseen record is near its floor.
     """
-    case = cases.make_case(30, (), sensor_faults=None, duration=12.0, measured_current=None)
+    case = truthcases.case(1005, (), shape='bouc_wen', sensor_faults=('channel_delay',),
+                           duration=12.0, measured_current=True)
     lead = case.sensor['spec'].force_delay
-    assert lead == pytest.approx(-2.43e-3, abs=0.01e-3)
+    assert -3.4e-3 < lead < -1.6e-3
     t = case.truth
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
-    # The loop keeps 95 % of the yield force; the static rest's shape (a sharp corner) may
-    # join it at the full rate (``_shape_again``: unseen record 2.29 -> 2.22 floors).
+    # The loop carries the yield force; the static rest's shape may join it.
     assert res.physical_causes[0] == 'hysteresis'
     assert set(res.physical_causes) <= {'hysteresis', 'yield_shape'}
     assert res.delay == pytest.approx(lead, abs=0.2e-3)
     r_h = t.bw_gamma / (t.bw_beta + t.bw_gamma)  # the normalised loop's unloading shape
     assert res.final.eta['hyst_r'] == pytest.approx(r_h, abs=0.15)
     assert res.final.eta['hyst_n'] == pytest.approx(t.bw_n, abs=0.15)
-    assert any(s.get('stage') == 'loop searched anew (full rate)' for s in res.steps)
     unseen = case.unseen()
     assert est.score(_record(unseen.columns)) < 2.8 * cases.transfer_floor(case, unseen)
 
 
 def test_anti_alias_filter_comes_before_the_spring_that_mimicked_it():
-    """Algebraic-yield damper with a rebound/compression asymmetry, a 169 Hz anti-alias filter.
+    """Algebraic-yield damper with a rebound/compression asymmetry, a 130-220 Hz anti-alias.
 
-    Truth integrator; the load cell also clips at 86 % of its peak. The filter's roll-off
-    had been taken by a 2.4e7 N/m series spring and a 1 ms dead time; on top of them the
-    filter gained 0.16 at fold t 1.3 and was not named, and the unseen record sat at 2.6
-    floors. Judged before the physics it hides, the filter stands and the spring and the
-    dead time go.
+    Truth integrator; the load cell also clips. The filter's roll-off can be taken by a
+    stiff series spring and a sample of dead time. Judged before the physics it hides, the
+    filter stands at the truth's cut-off, the asymmetry is named, no spring and no dead time
+    take its place, and an unseen record is near its floor.
     """
-    case = cases.make_case(267, ('direction_asymmetry',), sensor_faults=None, duration=12.0,
+    case = truthcases.case(0, ('direction_asymmetry',), shape='algebraic',
+                           sensor_faults=('anti_alias', 'clipping'), duration=12.0,
                            measured_current=None)
     f_ch = case.sensor['spec'].force_filter_hz
-    assert f_ch == pytest.approx(168.8, abs=0.1)
+    assert 130.0 < f_ch < 220.0 and case.sensor['spec'].clip_fraction > 0.0
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
     assert res.locations.get('channel_filter') == 'sensor'
     assert res.channel_filter == pytest.approx(f_ch, rel=0.1)
     assert 'direction_asymmetry' in res.physical_causes
     assert not {'series_stiffness', 'current_delay'} & set(res.physical_causes)
-    assert any(s.get('added') == 'channel_filter' and 'before the physics' in s.get('stage', '')
-               for s in res.steps)
     unseen = case.unseen()
     assert est.score(_record(unseen.columns)) < 1.6 * cases.transfer_floor(case, unseen)
 
@@ -1061,12 +1126,9 @@ def test_yield_shape_is_judged_again_at_the_full_rate(shape):
                            measured_current=True)
     assert case.truth.v_y == pytest.approx(2.3e-3, abs=0.1e-3)
     res = diagnose.Diagnosis().fit([_record(case.columns)])
-    step = [s for s in res.steps if s.get('stage') == 'yield shape again (full rate)']
-    assert len(step) == 1  # judged once, on top of the selected model
     if shape == 'bingham_tanh':
         assert 'yield_shape' not in res.causes
         return
-    assert step[0].get('added') == 'yield_shape'
     assert 'yield_shape' in res.physical_causes
     assert res.final.eta['yield_n'] == pytest.approx(2.0, abs=0.5)
 
@@ -1074,63 +1136,65 @@ def test_yield_shape_is_judged_again_at_the_full_rate(shape):
 def test_a_driver_lag_that_gains_much_at_a_modest_fold_t_is_named():
     """An arctan damper with a direction asymmetry, its coil current not measured.
 
-    The truth's driver lags the command by 0.38 ms (1.96x the noise in force). Its error
-    sits in the blocks around the 27 command edges, so the full-rate timing gains 20-30 %
-    of the held-out MSE at a fold t of only 1.9 and an active-block t of 2.4-2.8: below
-    ``T_FINE``, but a gain of ``G_FINE`` or more needs only ``T_MIN``. Without the timing
-    the unseen record of the same damper is predicted at 3.8 noise floors.
+    The truth's driver lags the command by 0.4 ms (above 1.5x the noise in force). Its
+    error sits in the blocks around the command edges, so the full-rate timing gains much of
+    the held-out error at a modest fold t. A sub-sample current timing must be named, and
+    on an unseen record of the same damper the delivered model must predict better with it
+    than without it.
     """
-    case = cases.make_case(100234, ('direction_asymmetry',), sensor_faults=None,
-                           duration=12.0, measured_current=None)
+    case = truthcases.case(18000, ('direction_asymmetry',), shape='arctan', strength=0.9,
+                           sensor_faults=(), duration=12.0, measured_current=False,
+                           driver_tau=4e-4)
     assert case.sensor['spec'].current == 'absent' and case.driver_contribution > 1.5
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
-    step = [s for s in res.steps if s.get('stage') == 'fine timing (full rate)']
-    assert len(step) == 1 and step[0].get('added') in diagnose.FINE
-    stats = step[0]['candidates'][step[0]['added']]
-    assert stats['gain_mse'] >= diagnose.G_FINE
-    assert max(stats['t'], stats.get('t_active', 0.0)) < diagnose.T_FINE  # the old bar
+    assert set(diagnose.FINE) & set(res.physical_causes)
     assert 'direction_asymmetry' in res.physical_causes
     unseen = case.unseen()
-    assert est.score(_record(unseen.columns)) < 2.0 * cases.transfer_floor(case, unseen)
+    ur = _record(unseen.columns, 'unseen')
+    assert est.score(ur) < 2.0 * cases.transfer_floor(case, unseen)
+    fin, m = res.final, ur.mask
+    pr = diagnose.denoise_current(dataio.for_prediction(ur), res.driver)
+
+    def rms(dyn):
+        f = engine.simulate(pr, fin.params(), dyn, **fin.channel)
+        return np.sqrt(np.mean((ur.force[m] - f[m]) ** 2))
+    assert rms(fin.dynamics()) < 0.8 * rms({'dead_time': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0})
 
 
-def test_a_spring_screened_on_top_of_a_named_loop_gets_the_restarts():
-    """An algebraic damper behind a soft series spring (8.3e4 N/m), no velocity channel.
+def test_a_spring_screened_beside_a_named_loop_gets_the_restarts():
+    """An algebraic damper behind a soft series spring (5e4-1.4e5 N/m), no velocity channel.
 
-    Benchmark case (``bench_diagnose`` seed 1, case 297; truth integrator and sensors). A
-    spring in front of the yield element draws a loop, and the loop is named first; the
-    spring screened on top of it from one start gained 0.14 at fold t 1.5 and was refused
-    (unseen / floor 9.2). Refitted with the restarts over k1 it gains 0.35 at t 10.
+    A spring in front of the yield element draws a pre-yield loop, which can be named beside
+    it; a spring and loop fitted from one start can end in the valley of another stiffness.
+    Refitted with the restarts over k1, the spring is named with the truth's stiffness.
     """
-    case = cases.make_case(100003 + 297, ('series_stiffness',), sensor_faults=None,
-                           duration=12.0, measured_current=None)
-    assert case.truth.k_series < 1e5 and 'velocity' not in case.columns
+    case = truthcases.case(19000, ('series_stiffness',), shape='algebraic', strength=0.9,
+                           sensor_faults=('no_velocity',), duration=12.0,
+                           measured_current=True)
+    assert 5e4 < case.truth.k_series < 1.4e5 and 'velocity' not in case.columns
     res = diagnose.Diagnosis().fit([_record(case.columns)])
     assert 'series_stiffness' in res.physical_causes
-    step = [s for s in res.steps if s.get('parent') == ['hysteresis']
-            and 'series_stiffness' in s.get('candidates', {})]
-    assert step and step[0]['candidates']['series_stiffness']['accepted']
+    assert res.final.eta['k_series'] == pytest.approx(case.truth.k_series, rel=0.1)
 
 
 def test_a_driver_dead_time_beyond_three_named_causes_is_named_last():
-    """An algebraic damper with a partial loop and a direction asymmetry, current not measured.
+    """An algebraic damper with a small partial loop and an asymmetry, current not measured.
 
-    Benchmark case (``bench_diagnose`` seed 1, case 262; truth integrator and sensors). The
-    selection names its three causes (loop, asymmetry, yield shape), which fills
-    ``MAX_CAUSES``; the truth's driver then still delays the force of every command edge by
-    a sample (1.7x the noise), and with no room left the full-rate timing was never judged:
-    the unseen record of the same damper was predicted at 4.1 noise floors. The model stays
-    above ``ROOM_FACTOR`` floors on its inner folds, so one more cause is looked for.
+    The selection names three causes (loop, asymmetry, yield shape), which fills
+    ``MAX_CAUSES``; the truth's driver (0.3 ms) still delays the force of every command
+    edge by about a sample (above the noise). Where the model stays well above the noise
+    floor one more cause is looked for: the dead time is named last, at about a sample, and
+    an unseen record of the same damper is predicted near its floor.
     """
-    case = cases.make_case(100003 + 262, ('hysteresis', 'direction_asymmetry'),
-                           sensor_faults=None, duration=12.0, measured_current=None)
+    case = truthcases.case(20000, ('hysteresis', 'direction_asymmetry'), shape='algebraic',
+                           strength={'hysteresis': 0.2, 'direction_asymmetry': 0.45},
+                           sensor_faults=(), duration=12.0, measured_current=False,
+                           driver_tau=3e-4)
     assert case.sensor['spec'].current == 'absent' and case.driver_contribution > 1.0
+    assert 0.05 < case.truth.hyst_weight < 0.15
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
-    step = [s for s in res.steps if s.get('stage', '').startswith('a cause beyond')]
-    assert len(step) == 1 and step[0]['heldout_rms_over_floor'] > diagnose.ROOM_FACTOR
-    assert step[0].get('added') == 'current_delay'
     phys = res.physical_causes
     assert len(phys) == diagnose.MAX_CAUSES + 1 and phys[-1] == 'current_delay'
     assert {'hysteresis', 'direction_asymmetry'} <= set(phys)
@@ -1140,20 +1204,15 @@ def test_a_driver_dead_time_beyond_three_named_causes_is_named_last():
 
 
 def test_an_arctan_shape_judged_with_the_saturation_it_trades_with():
-    """An arctan-yield damper with a current saturation (and a thermal fade below the bar).
+    """An arctan-yield damper with a strong current saturation (``i_s`` 0.5-1 A of 1 A).
 
-    Benchmark case (``bench_diagnose`` seed 0, case 173; truth integrator and sensors). The
-    saturation shapes the same yield force as the sigmoid's tail. Stop 35: judged with the
-    named causes' parameters held, the full-rate yield shape was refused and the tanh tail
-    missed the unseen record (a faster programme) by 5.5 noise floors; judged with them
-    refitted it was named there (3.07 floors). Stop 37: the saturated field drives the
-    viscous term too and the curve's exponent is searched; the shape is then separable at
-    the search rate already (named in the selection, gain 0.12 at t 2.7) and the unseen
-    record comes to 2.66 floors.
+    The saturation shapes the same yield force as the sigmoid's tail, and the saturated
+    field drives the viscous term too. Both must be named, each with its parameter, and an
+    unseen record of the same damper predicted near its floor.
     """
-    case = cases.make_case(173, ('current_saturation', 'thermal_fade'), sensor_faults=None,
-                           duration=12.0, measured_current=None)
-    assert case.truth.shape == 'arctan'
+    case = truthcases.case(21002, ('current_saturation',), shape='arctan', strength=0.7,
+                           sensor_faults=(), duration=12.0, measured_current=False)
+    assert 0.5 < case.truth.i_sat < 1.0
     est = diagnose.Diagnosis()
     res = est.fit([_record(case.columns)])
     assert {'current_saturation', 'yield_shape'} <= set(res.physical_causes)
@@ -1173,7 +1232,7 @@ def test_a_cause_beyond_the_limit_is_sought_only_where_the_model_stays_above_the
 
     def stage(ds, final, chosen, cands, tick, label, t_min=diagnose.T_FINE, out=None):
         calls.append((tuple(chosen), tuple(cands), t_min))
-        return final, chosen, {'stage': label, 'candidates': {}}
+        return final, chosen, {'candidates': {}}
 
     monkeypatch.setattr(diagnose, '_fine_stage', stage)
     full = ['hysteresis', 'direction_asymmetry', 'yield_shape']
@@ -1224,30 +1283,34 @@ def test_an_exponential_magnetisation_curve_is_fitted_by_the_curve_exponent():
 def test_a_force_channel_delay_beside_a_loop_is_judged_against_the_loop_without_it():
     """Two Bouc-Wen dampers (truth integrator), judged at the full rate on inner folds.
 
-    Seed-1 case 37 of the benchmark (a 3.7 ms dead time, no channel delay): the selection
-    had ended in a 2.3 ms force-channel delay beside a loop at share 0.65 with ``r_h`` at
-    its bound (unseen 2.84 floors); the loop fitted anew without the delay is far better on
-    the held-out folds, the delay is dropped and the unseen record comes to 1.27 floors.
-    Seed-1 case 51 (a real 2.4 ms channel delay): the delay gains 97 % and stays.
+    One with a 3-5 ms dead time and no channel delay (velocity derived from the stroke):
+    a fit trapped with a 2.3 ms force-channel delay beside a loop at share 0.65 and its
+    unloading shape at the bound, the dead time 1.7 ms short, predicts an unseen record far
+    from its floor; the loop fitted anew without the delay is far better on the held-out
+    folds, so the delay is dropped and the unseen record comes near its floor. One with a
+    real 2-3.5 ms channel delay: the delay pays most of the held-out error and stays.
     """
-    case = cases.make_case(100040, ('current_delay',), sensor_faults=None, duration=12.0,
-                           measured_current=None)
-    assert 'channel_delay' not in case.sensor['spec'].faults
+    case = truthcases.case(22000, ('current_delay',), shape='bouc_wen', strength=0.3,
+                           sensor_faults=('derived_velocity',), duration=12.0,
+                           measured_current=False)
+    t = case.truth
+    assert 3e-3 < t.dead_time < 5e-3 and 'channel_delay' not in case.sensor['spec'].faults
     ds = engine.Dataset([_record(case.columns)], outer=True)
     chosen = ['channel_delay', 'hysteresis', 'current_delay']
     trapped = engine.fit(ds, tuple(chosen), new=(), sweeps=1, start_eta={
-        'delay': 2.3e-3, 'x_h': 8.3e-5, 'hyst_weight': 0.65, 'hyst_n': 2.3, 'hyst_r': 0.5,
-        'dead_time': 2e-3, 'v_y': 0.0078})
+        'delay': 2.3e-3, 'x_h': 0.6 / t.bw_a, 'hyst_weight': 0.65, 'hyst_n': 2.3, 'hyst_r': 0.5,
+        'dead_time': t.dead_time - 1.7e-3, 'v_y': t.v_y / 3.0})
     final, kept, step = diagnose._delay_or_loop(ds, trapped, chosen, lambda *a: None)
     assert kept == ['hysteresis', 'current_delay'] and step['dropped'] == ['channel_delay']
     assert final.heldout_mse < 0.5 * trapped.heldout_mse
     assert _unseen_over_floor(case, trapped) > 2.0
     assert _unseen_over_floor(case, final) < 1.5
 
-    case = cases.make_case(100054, ('direction_asymmetry',), sensor_faults=None, duration=12.0,
-                           measured_current=None)
+    case = truthcases.case(23013, ('direction_asymmetry',), shape='bouc_wen', strength=0.7,
+                           sensor_faults=('channel_delay',), duration=12.0,
+                           measured_current=False)
     delay = case.sensor['spec'].force_delay
-    assert delay > 2e-3
+    assert 2e-3 < delay < 3.5e-3
     t = case.truth
     ds = engine.Dataset([_record(case.columns)], outer=True)
     chosen = ['channel_delay', 'hysteresis', 'direction_asymmetry']
@@ -1291,10 +1354,9 @@ def test_the_local_fits_bring_the_prediction_velocity_nearer_than_the_ladder_alo
     """Truth records, a measured velocity with white noise: the local fits against the ladder.
 
     ``sensors.directional_velocity`` (the Butterworth ladder fused with past, centred and
-    future local quadratic fits) against the ladder alone (``sensors.ici_lowpass``, the
-    prediction velocity before stop 43) on the same fused rate. The truth's reversals turn
-    against its yield force; measured at stop 43 on seeds 0-11: 0.54-0.88x near the yield,
-    0.61-0.86x over the record.
+    future local quadratic fits) against the ladder alone (``sensors.ici_lowpass``) on the
+    same fused rate. The truth's reversals turn against its yield force; the local fits must
+    err less near the yield and over the record, on average and on every record.
     """
     near, whole = [], []
     for seed in range(6):
@@ -1333,23 +1395,32 @@ def test_a_saved_model_predicts_with_the_prediction_velocity():
 
 
 def test_a_yield_shape_that_ties_hedges_the_prediction_beyond_the_fitted_rates():
-    """Benchmark seed 1 case 53: arctan damper, asymmetry, training rates to 3 v_y only.
+    """An arctan damper (v_y 45-80 mm/s) with asymmetry and an asymmetric current lag.
 
-    The held-out folds cannot tell the arctan tail from tanh plus a steeper viscous slope
-    (shape not named), and an unseen record at 2.4x the rates was missed by 3.2 noise
-    floors. The tied shape is kept as a hedge: predict returns the mean of both models.
+    The training record reaches about 2.4 v_y only, where the held-out folds cannot tell the
+    arctan tail from tanh plus a steeper viscous slope: the shape is not named but ties, and
+    is kept as a hedge. ``predict`` returns the mean of both models; on an unseen record of
+    the same damper driven about twice as fast the mean predicts better than the named model
+    alone, and on the fitted rates it costs nothing held out.
     """
-    case = cases.make_case(100003 + 53, ('current_lag_asymmetric', 'direction_asymmetry'),
-                           sensor_faults=None, duration=12.0, measured_current=None)
-    assert case.truth.shape == 'arctan'
+    case = truthcases.case(24043, ('current_lag_asymmetric', 'direction_asymmetry'),
+                           shape='arctan', strength={'current_lag_asymmetric': 0.3,
+                                                     'direction_asymmetry': 0.5},
+                           sensor_faults=('time_rounding',), duration=12.0,
+                           measured_current=True)
+    assert case.truth.v_y > 0.045
     est = diagnose.Diagnosis()
     rec = _record(case.columns)
     res = est.fit([rec])
     assert 'yield_shape' not in res.causes and res.hedge is not None
     assert 'yield_shape' in res.hedge.effects and res.hedge.eta['yield_n'] > 0
     assert res.predictors == (res.final, res.hedge)
-    unseen = case.unseen()
+    unseen = case.unseen(record=5)
     ur = _record(unseen.columns, 'unseen')
+
+    def v99(r):
+        return np.percentile(np.abs(r.velocity[r.mask]), 99)
+    assert v99(ur) > 1.8 * v99(rec)
     pr = diagnose.denoise_current(dataio.for_prediction(ur), res.driver)
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')  # the unseen record leaves the fitted range
@@ -1359,7 +1430,7 @@ def test_a_yield_shape_that_ties_hedges_the_prediction_beyond_the_fitted_rates()
     m = ur.mask
     err = [np.sqrt(np.mean((ur.force[m] - g[m]) ** 2)) for g in (f, alone[0])]
     floor = cases.transfer_floor(case, unseen) * np.std(ur.force[m])
-    assert err[0] < 0.85 * err[1] and err[0] < 3.0 * floor
+    assert err[0] < 0.95 * err[1] and err[0] < 3.0 * floor
     # On the fitted rates the two agree: the mean costs nothing held out.
     ho = res.heldout
     assert ho['hedged_nrmse'] < 1.02 * ho['extended_nrmse']

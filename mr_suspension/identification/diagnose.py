@@ -16,7 +16,7 @@ resolve to the simpler one. Effects that the excitation cannot reveal are ``unte
 
 from concurrent.futures import ThreadPoolExecutor
 import copy
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 import functools
 import os
 
@@ -24,7 +24,8 @@ from numba import njit
 import numpy as np
 
 from mr_suspension.identification import data as dataio
-from mr_suspension.identification import engine, model_io, noise, sensors
+from mr_suspension.identification import engine, model_io, noise
+from mr_suspension.identification.denoise import denoise_current
 
 G_MIN = 0.03
 T_MIN = 2.0
@@ -40,7 +41,6 @@ CLEAR_LOSS = 0.6
 SCREEN_FIXED = ()  # parameters screening fits keep at the parent's value (none: see docs)
 MAX_SECONDS = 300.0  # longer data are judged on windows spread over it (data.limit_duration)
 PARTLY_FACTOR = 2.0  # extended held-out NRMSE above this many noise floors: partly explained
-CURRENT_NOISE_MIN = 1e-3  # white current noise (share of its range) worth removing
 UPGRADE = 'current_lag->current_lag_asymmetric'
 FINE = ('current_delay', 'current_lag')  # current timing below the search rate's step
 TIMING = ('current_delay', 'current_lag', 'current_lag_asymmetric')
@@ -295,35 +295,19 @@ def _driver_error(recs, dead, tr, tf):
     return err
 
 
-def denoise_current(record, driver):
-    """Measured coil current fused with the command through the fitted driver.
+def _polish_lags(recs, dead, tr, tf):
+    """Nelder-Mead on the log time constants at a fixed dead time; ``(cost, (tr, tf))``."""
+    from scipy import optimize
 
-    The command through ``driver`` (dead time, rise/fall lags: ``engine.field_current``) is a
-    second, noise-free measurement of the coil current, wrong only by the driver model's
-    error; the measured current carries white noise. Their difference ``r = i_m - i_d`` holds
-    both: its band is found as a motion's (``sensors.motion_band``: where its spectrum stands
-    above its white level, at least ``sensors.BAND_MIN``), and ``i = i_d + LP(r)`` (zero-phase,
-    4th order) keeps the model error in that band and drops the noise above it. A driver model
-    that misses fast dynamics widens the band and so removes less. Returns the record with
-    the fused ``i_in`` and a description in ``meta['current_source']``, or the record itself
-    without a measured current, a command or a driver, or when the noise above the band is
-    below ``CURRENT_NOISE_MIN`` of the current's range.
-    """
-    if (not driver or record.input_kind != 'current' or record.command is None
-            or not np.ptp(record.command) > 0):
-        return record
-    i_d = engine.field_current(np.ascontiguousarray(record.command, dtype=float), record.dt,
-                               driver['dead_time'], driver['tau_rise'], driver['tau_fall'])
-    r = record.i_in - i_d
-    cut, white = sensors.motion_band(r, record.dt)
-    if not white > CURRENT_NOISE_MIN * float(np.ptp(record.i_in)):
-        return record
-    cut = sensors.BAND_MIN if cut is None else cut
-    i_f = i_d + sensors.lowpass(r, record.dt, cut, order=4)
-    source = (f'measured coil current fused with the command through the fitted driver '
-              f'(difference low-passed at {cut:.3g} Hz, zero-phase; {1e3 * white:.3g} mA RMS '
-              'white noise removed)')
-    return replace(record, i_in=i_f, meta={**record.meta, 'current_source': source})
+    def obj(z):
+        return _driver_error(recs, dead, float(np.exp(z[0])) if z[0] > -12 else 0.0,
+                             float(np.exp(z[1])) if z[1] > -12 else 0.0)
+
+    z0 = np.log(np.maximum([tr, tf], 2e-4))
+    res = optimize.minimize(obj, z0, method='Nelder-Mead',
+                            options={'xatol': 0.005, 'fatol': 0.0, 'maxfev': 120})
+    lags = (float(np.exp(res.x[0])), float(np.exp(res.x[1])))
+    return float(res.fun), lags
 
 
 def identify_driver(records, nominal=None):
@@ -334,7 +318,10 @@ def identify_driver(records, nominal=None):
     the time constants at the best dead time and its neighbours: dead time to one sample, time
     constants to well within 10 %. Least squares on the current. With it the fitted force-model
     lags are the fluid's alone (seed 000 5.2-5.3). ``nominal`` (a ``core.driver.DriverParams``)
-    adds the nominal driver's error and the deviations, location ``driver``.
+    adds the nominal driver's error and the deviations, location ``driver``: ``driver_delay``
+    where holding the dead time at the nominal (lags refitted) costs ``G_MIN`` of the current's
+    SSE, ``driver_lag`` where holding the lags at the nominal (dead time refitted within two
+    samples) does, each beside a deviation of the parameter itself.
     """
     recs = [r for r in records if r.input_kind == 'current' and r.command is not None]
     if not recs or max(float(np.ptp(r.command)) for r in recs) <= 0:
@@ -354,22 +341,12 @@ def identify_driver(records, nominal=None):
             if errs[j] < best[0]:
                 best = (errs[j], deads[j], tr, tf)
     c, dead, tr, tf = best
-    from scipy import optimize
-
     for d in (dead - dt, dead, dead + dt):
         if d < 0:
             continue
-
-        def obj(z, d=d):
-            return _driver_error(recs, d, float(np.exp(z[0])) if z[0] > -12 else 0.0,
-                                 float(np.exp(z[1])) if z[1] > -12 else 0.0)
-
-        z0 = np.log(np.maximum([tr, tf], 2e-4))
-        res = optimize.minimize(obj, z0, method='Nelder-Mead',
-                                options={'xatol': 0.005, 'fatol': 0.0, 'maxfev': 120})
-        if res.fun < c:
-            c, dead = float(res.fun), d
-            tr, tf = (float(np.exp(res.x[0])), float(np.exp(res.x[1])))
+        cost, lags = _polish_lags(recs, d, tr, tf)
+        if cost < c:
+            c, dead, (tr, tf) = cost, d, lags
     var = sum(float(np.sum((r.i_in - np.mean(r.i_in)) ** 2)) for r in recs)
     out = {'dead_time': float(dead), 'tau_rise': float(tr), 'tau_fall': float(tf),
            'nrmse': float(np.sqrt(c / max(var, 1e-300))), 'location': 'driver'}
@@ -378,11 +355,17 @@ def identify_driver(records, nominal=None):
         out['nominal'] = {'dead_time': nominal.dead_time, 'tau_rise': nominal.tau_rise,
                           'tau_fall': nominal.tau_fall,
                           'nrmse': float(np.sqrt(cn / max(var, 1e-300)))}
+        # Each deviation must pay by itself: the fit with that part held at the nominal and
+        # the rest refitted is materially worse (dead time and lags trade at a sample's scale).
         dev = []
-        if abs(dead - nominal.dead_time) >= 0.99 * dt:
+        c_dead = _polish_lags(recs, nominal.dead_time, tr, tf)[0]
+        if abs(dead - nominal.dead_time) >= 0.5 * dt and 1.0 - c / c_dead >= G_MIN:
             dev.append('driver_delay')
-        if any(abs(a - b) > 0.1 * max(b, dt) for a, b in ((tr, nominal.tau_rise),
-                                                          (tf, nominal.tau_fall))):
+        c_lag = min(_driver_error(recs, d, nominal.tau_rise, nominal.tau_fall)
+                    for d in deads[np.abs(deads - dead) <= 2.5 * dt])
+        if (any(abs(a - b) > 0.1 * max(b, dt) for a, b in ((tr, nominal.tau_rise),
+                                                           (tf, nominal.tau_fall)))
+                and 1.0 - c / c_lag >= G_MIN):
             dev.append('driver_lag')
         # A deviation counts when the nominal driver is materially worse on the current.
         out['deviations'] = dev if cn > 0 and 1.0 - c / cn >= G_MIN else []
@@ -459,6 +442,53 @@ def _room(chosen):
 
 def _name(e):
     return 'current_lag_asymmetric' if e == UPGRADE else e
+
+
+def simplicity(e):
+    """Sort key of an effect, simplest first: fewer parameters, then catalogue order."""
+    e = _name(e)
+    return (len(engine.EFFECT_PARAMS.get(e, ())), engine.ALL_EFFECTS.index(e)
+            if e in engine.ALL_EFFECTS else len(engine.ALL_EFFECTS))
+
+
+def beats(a, b, t_tie=TIE_T):
+    """Return True when held-out errors ``a`` beat ``b`` by more than their uncertainty.
+
+    The pooled MSE falls and the fold t of the improvement is at least ``t_tie``: a smaller
+    difference is a tie, which no choice may rest on (round-off decides it).
+    """
+    pooled, t, _ = fold_stats(a, b)
+    return pooled > 0 and t >= t_tie
+
+
+def pick_best(fits, names=None):
+    """Name of the fit with the lowest held-out error, a near-tie going to the simpler one.
+
+    ``fits`` maps effect names to fits. The lowest held-out MSE wins unless a simpler fit
+    (``simplicity``) is not beaten by it (``beats``): then the simplest such fit is taken.
+    """
+    names = list(fits) if names is None else list(names)
+    best = min(names, key=lambda e: (fits[e].test.sum(), simplicity(e)))
+    for e in sorted(names, key=simplicity):
+        if e == best or not beats(fits[best].test, fits[e].test):
+            return e
+    return best
+
+
+SSE_TIE = 1e-6  # training SSEs of one model from two starts closer than this share: a tie
+
+
+def pick_lowest(fits, key):
+    """Return the fit of the lowest ``key`` (training SSE), the first given winning a near-tie.
+
+    Two starts of one model that reach the same error within ``SSE_TIE`` are one optimum
+    reached twice; the first (the preferred start) is kept rather than the round-off winner.
+    """
+    best = min(fits, key=key)
+    for f in fits:
+        if key(f) <= key(best) * (1.0 + SSE_TIE):
+            return f
+    return best
 
 
 def _choose(cands, parent, t_min=T_MIN):
@@ -869,7 +899,7 @@ def _lagging_force_pays(ds, base, singles, physics, steps, tick, share):
     a current lag or behind a soft spring lags the force twice). A force that leads the motion
     has no physical explanation and is not judged here.
     """
-    b = min(singles, key=lambda e: singles[e].test.sum())
+    b = pick_best(singles)
     with_d = singles[b]
     jobs = {b: (b + ' without channel_delay', lambda: engine.fit(
         ds, (b,), start_eta={**with_d.eta, 'delay': 0.0}, start_theta=with_d.theta,
@@ -895,31 +925,38 @@ def _lagging_force_pays(ds, base, singles, physics, steps, tick, share):
     if not ok or not others:
         return ok, (None if ok else loop)
     # A loop with a second lag (a current lag, a series spring) lags the force in two ways at
-    # once; the delay then pays on top of either alone (a 3.7 ms delay kept on a partial
-    # loop with a 14 ms current lag; a 16 ms delay on a Bouc-Wen damper behind a soft
-    # spring). It must also pay on top of the loop and the best other single together.
-    b = min(others, key=lambda e: singles[e].test.sum())
-    # Two starts, the lower training SSE wins (inner folds only): from the baseline with
-    # both searched, and from the partial loop with ``b`` added. From one start the pair
-    # ended in a valley where the loop carried 4 % of the yield force (training SSE 6x that
-    # of the other start), and a 16 ms delay stood in for the spring; which start won moved
-    # with the float order of a sum.
+    # once; the delay then pays on top of either alone. It must also pay on top of the loop
+    # and the best other single together. That rival is chosen by the pair's own held-out
+    # error *without* the delay, among the two best singles: ranked by their fits with the
+    # delay, a single whose fit with the delay settled in a poor valley (a soft spring) would
+    # hand the delay a weak rival.
+    ranked = sorted(others, key=lambda e: singles[e].test.sum())[:2]
+    pairs = {e: _loop_pair(ds, base, loop, e) for e in ranked}
+    b = pick_best(pairs, ranked)
+    pair = pairs[b]
+    ok = _delay_on_top(ds, pair, steps, tick, f'partial hysteresis + {b}', 'channel_delay on '
+                       'top of a partial pre-yield loop and the best physical single, against '
+                       'the two without it')
+    return ok, (None if ok else loop)
+
+
+def _loop_pair(ds, base, loop, b):
+    """Fit a partial loop with the single ``b`` from two starts, the lower training SSE kept.
+
+    From the baseline with both searched, and from the partial ``loop`` with ``b`` added (the
+    pair's valleys are far apart; inner folds only decide). A pair with a series spring also
+    gets the restarts over k1 (``engine.loop_restarts``).
+    """
     starts = _parallel({
         'base': (f'partial hysteresis + {b} from the baseline', lambda: engine.fit(
             ds, ('hysteresis', b), start_eta=base.eta, start_theta=base.theta,
             new=(b, 'hysteresis'), extra=(engine.SHARE,))),
         'loop': (f'partial hysteresis + {b} from the loop', lambda: engine.fit(
             ds, ('hysteresis', b), start_eta=loop.eta, start_theta=loop.theta, new=(b,)))})
-    pair = min(starts.values(), key=lambda f: f.sse)
+    pair = pick_lowest([starts['base'], starts['loop']], lambda f: f.sse)
     if b == 'series_stiffness' and pair.eta['k_series'] > 0:
-        # A spring and a loop trade along several valleys: from one start the pair can end
-        # in a poor one and leave room for a delay standing in for the spring (a Bouc-Wen
-        # damper behind a soft spring kept a 16 ms delay and lost its spring).
         pair = _restarts(ds, pair)
-    ok = _delay_on_top(ds, pair, steps, tick, f'partial hysteresis + {b}', 'channel_delay on '
-                       'top of a partial pre-yield loop and the best physical single, against '
-                       'the two without it')
-    return ok, (None if ok else loop)
+    return pair
 
 
 def _delay_on_top(ds, fit, steps, tick, label, stage):
