@@ -38,6 +38,12 @@ def test_linear_passive_run_matches_closed_form_response():
     assert sine_gain(res.t, res.stroke, 1.5, 4) == pytest.approx(expected, rel=2e-3)
 
 
+def _table_cells(text):
+    """Cells of each line of a Markdown table (outer pipes dropped, blanks stripped)."""
+    return [[c.strip() for c in line.strip().strip('|').split('|')]
+            for line in text.splitlines()]
+
+
 def test_run_rows_and_relative_table():
     rows = runner.run(['passive_0A', 'skyhook'], ['bump'], driver='ideal')
     assert [r['law'] for r in rows] == ['passive_0A', 'skyhook']
@@ -46,9 +52,25 @@ def test_run_rows_and_relative_table():
             assert math.isfinite(r[key]) and r[key] >= 0.0
     rel = tables.relative(rows, 'passive_0A')
     assert all(v == 0.0 for k, v in rel[0].items() if k not in ('law', 'scenario'))
-    text = tables.markdown(rows)
-    assert text.count('\n') == 3 and 'skyhook' in text
-    assert '+' in tables.markdown(rel, percent=True) or '-' in tables.markdown(rel, True)
+    # The tables hold the metrics they render: each cell read back is the row's value in the
+    # unit its header names (3 significant digits), or its change against passive_0A in %.
+    keys = [key for key, _, _ in tables.COLUMNS]
+    head, sep, *body = _table_cells(tables.markdown(rows))
+    assert head == ['law', 'scenario'] + [name for _, name, _ in tables.COLUMNS]
+    assert len(body) == len(rows) and set(''.join(sep)) == {'-'}
+    for cells, row in zip(body, rows):
+        assert cells[:2] == [row['law'], 'bump']
+        for cell, (key, name, _) in zip(cells[2:], tables.COLUMNS):
+            unit = 1e3 if name.endswith('[mm]') else 1.0  # metrics are SI: m -> mm
+            assert float(cell) == pytest.approx(row[key] * unit, rel=5.1e-3, abs=1e-12), key
+    _, _, *body = _table_cells(tables.markdown(rel, percent=True))
+    passive, sky = rows
+    assert body[0][2:] == ['+0.0'] * len(keys)
+    assert body[1][:2] == ['skyhook', 'bump']
+    for cell, key in zip(body[1][2:], keys):
+        want = 100.0 * (sky[key] / passive[key] - 1.0)
+        assert float(cell) == pytest.approx(want, abs=0.051), key
+        assert cell[0] == ('+' if want >= 0.0 else '-')
     mean = tables.summary_by_law(rows)
     assert {m['law'] for m in mean} == {'passive_0A', 'skyhook'}
 

@@ -6,10 +6,11 @@ import json
 
 import numpy as np
 import pytest
+import truthcases
 
 from mr_suspension import cli as main_cli
 from mr_suspension.core import config
-from mr_suspension.identification import cli, model_io, synthetic
+from mr_suspension.identification import cli, model_io
 from mr_suspension.identification.data import load_records, LoadOptions, parse_mapping
 from mr_suspension.nodes.common import corner_config
 
@@ -23,7 +24,17 @@ def _write_csv(path, rec, mm_kn=False):
 
 
 def test_diagnose_predict_round_trip(tmp_path, capsys):
-    rec, truth = synthetic.make_record(('gas_spring',), seed=21, duration=16.0)
+    """A truth-rig damper with a gas spring (13x the noise), written in mm, mm/s and kN.
+
+    ``diagnose`` reads it through the column and unit options, names the gas spring with a
+    positive stiffness, and ``predict`` reproduces the fitted model's force from the same
+    file to within the noise; a record driven twice as far and fast is flagged.
+    """
+    case = truthcases.case(27002, ('gas_spring',), shape='bingham_tanh', strength=0.8,
+                           sensor_faults=(), duration=12.0, measured_current=False,
+                           driver_tau=0.0)
+    assert case.contributions['gas_spring'] > 10.0
+    rec = truthcases.record(case.columns)
     csv = tmp_path / 'rig.csv'
     _write_csv(csv, rec, mm_kn=True)
     out = tmp_path / 'out'
@@ -54,7 +65,7 @@ def test_diagnose_predict_round_trip(tmp_path, capsys):
     np.testing.assert_allclose(got[:, 1], model_io.predict(model, loaded), rtol=1e-7,
                                atol=1e-6)
     resid = got[:, 1] - rec.force
-    assert np.std(resid) < 1.2 * truth['noise_rms']
+    assert np.std(resid) < 1.2 * case.noise_rms
     # The model knows the range it was fitted on: the same record is inside it, the same
     # damper driven twice as far and fast is not, and predict says so.
     assert model['fitted_range']['abs_velocity_p999'] == pytest.approx(
@@ -100,7 +111,10 @@ def test_doe_help_and_errors(tmp_path, capsys):
 
 
 def test_force_in_kn_read_as_n_is_flagged(tmp_path, capsys):
-    rec, _ = synthetic.make_record((), seed=8, duration=6.0)
+    """An effect-free truth-rig damper whose force is written in kN: flagged, no cause."""
+    rec = truthcases.record(truthcases.case(27010, (), shape='bingham_tanh', sensor_faults=(),
+                                            duration=6.0, measured_current=False,
+                                            driver_tau=0.0).columns)
     csv = tmp_path / 'kn.csv'
     np.savetxt(csv, np.column_stack([rec.time, rec.displacement, rec.velocity,
                                      rec.force * 1e-3, rec.i_in]), delimiter=',',
@@ -114,8 +128,11 @@ def test_force_in_kn_read_as_n_is_flagged(tmp_path, capsys):
 
 
 def test_fitted_model_plugs_into_simulator_and_nodes(tmp_path):
-    # A diagnose model.json is a damper and a driver parameter set for simulate and the nodes.
-    rec, _ = synthetic.make_record(('current_lag',), seed=5, duration=12.0)
+    # A diagnose model.json is a damper and a driver parameter set for simulate and the nodes
+    # (plumbing: a truth-rig record with a current lag, nothing judged on the fit).
+    rec = truthcases.record(truthcases.case(27020, ('current_lag',), shape='bingham_tanh',
+                                            sensor_faults=(), duration=12.0,
+                                            measured_current=False).columns)
     csv = tmp_path / 'rig.csv'
     np.savetxt(csv, np.column_stack([rec.time, rec.displacement, rec.force, rec.i_in]),
                delimiter=',', header='time,displacement,force,current_command', comments='',
@@ -139,7 +156,8 @@ def test_fitted_model_plugs_into_simulator_and_nodes(tmp_path):
 
 
 def test_fitted_range_flags_only_what_leaves_it():
-    rec, _ = synthetic.make_record(('current_lag',), seed=4, duration=6.0)
+    rec = truthcases.record(truthcases.case(27030, ('current_lag',), sensor_faults=(),
+                                            duration=6.0, measured_current=False).columns)
     rng = model_io.fitted_range([rec])
     shares, msg = model_io.outside_range(rng, rec)
     assert msg is None and shares['velocity'] < 0.001 and shares['input'] == 0.0
@@ -165,7 +183,8 @@ def test_fitted_range_flags_only_what_leaves_it():
 
 
 def test_a_hedge_in_model_json_is_averaged_into_predict_and_checked():
-    rec, _ = synthetic.make_record(('current_lag',), seed=4, duration=3.0)
+    rec = truthcases.record(truthcases.case(27040, ('current_lag',), sensor_faults=(),
+                                            duration=3.0, measured_current=False).columns)
     dyn = {'dead_time': 0.0, 'tau_rise': 0.0, 'tau_fall': 0.0}
     tanh = model_io.ExtendedDamperParams(c0=900.0, c1=2000.0, fy0=80.0, fy1=600.0, v_y=0.02)
     shaped = dataclasses.replace(tanh, c0=500.0, yield_n=1.5, v_y=0.03)

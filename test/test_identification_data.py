@@ -5,6 +5,7 @@ import warnings
 
 import numpy as np
 import pytest
+import truthcases
 
 from mr_suspension.identification import data as dataio
 
@@ -159,37 +160,45 @@ def test_rosbag2_round_trip(tmp_path):
 
 
 def test_driver_identified_from_measured_current():
-    from mr_suspension.identification import diagnose, engine, synthetic
+    """The truth rig's driver (a 3.4 ms dead time, rise and fall lags 8.7 and 23 ms).
 
-    rec, _ = synthetic.make_record((), seed=1, duration=8.0)
-    coil = engine.field_current(rec.i_in, rec.dt, 0.003, 0.007, 0.004)
-    cols = {'time': rec.time, 'displacement': rec.displacement, 'velocity': rec.velocity,
-            'force': rec.force, 'current_command': rec.i_in, 'current': coil}
-    r2 = dataio.build_record('with-coil', cols)
-    drv = diagnose.identify_driver([r2])
-    assert drv['dead_time'] == pytest.approx(0.003, abs=1e-3)
-    assert drv['tau_rise'] == pytest.approx(0.007, rel=0.2)
-    assert drv['tau_fall'] == pytest.approx(0.004, rel=0.2)
-    assert diagnose.identify_driver([rec]) is None
+    Measured coil current (with its own noise) and command: the driver's dead time within a
+    sample, its lags within 20 %. Without the coil current there is no driver to identify.
+    """
+    from mr_suspension.identification import diagnose
+
+    case = truthcases.case(28005, ('current_delay', 'current_lag_asymmetric'),
+                           strength={'current_delay': 0.3, 'current_lag_asymmetric': 0.15},
+                           current_site='driver', driver_tau=0.0, measured_current=True,
+                           sensor_faults=(), duration=8.0)
+    tr = case.truth
+    assert tr.tau_rise > 3e-3 and tr.tau_fall > 3e-3
+    drv = diagnose.identify_driver([truthcases.record(case.columns)])
+    assert drv['dead_time'] == pytest.approx(tr.dead_time, abs=1e-3)
+    assert drv['tau_rise'] == pytest.approx(tr.tau_rise, rel=0.2)
+    assert drv['tau_fall'] == pytest.approx(tr.tau_fall, rel=0.2)
+    cols = {k: v for k, v in case.columns.items() if k != 'current'}
+    assert diagnose.identify_driver([truthcases.record(cols)]) is None
 
 
 def _lag(u, dt, tau):
-    """First-order lag from rest, exact for a held input (scipy, not the engine's kernel)."""
+    """First-order lag settled at ``u[0]``, exact for a held input (scipy, not the engine)."""
     from scipy import signal
 
     a = np.exp(-dt / tau)
-    return signal.lfilter([0.0, 1.0 - a], [1.0, -a], u)
+    return signal.lfilter([0.0, 1.0 - a], [1.0, -a], u, zi=[u[0]])[0]
 
 
 def test_measured_current_noise_is_cleaned_by_the_command_through_the_driver():
-    from mr_suspension.identification import diagnose, synthetic
+    from mr_suspension.identification import diagnose
 
-    rec, _ = synthetic.make_record((), seed=2, duration=10.0)
+    rec = truthcases.record(truthcases.case(28100, (), sensor_faults=(), duration=10.0,
+                                            measured_current=False).columns)
     dt, cmd = rec.dt, rec.i_in
     rng = np.random.default_rng(8)
     noise = 0.005  # [A] white
     # Dead time 3 ms and a 6 ms lag, written apart from the engine.
-    coil = np.r_[np.zeros(3), _lag(cmd, dt, 0.006)[:-3]]
+    coil = np.r_[np.full(3, cmd[0]), _lag(cmd, dt, 0.006)[:-3]]
     cols = {'time': rec.time, 'displacement': rec.displacement, 'velocity': rec.velocity,
             'force': rec.force, 'current_command': cmd,
             'current': coil + noise * rng.standard_normal(cmd.size)}

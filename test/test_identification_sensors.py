@@ -5,6 +5,7 @@ import warnings
 
 import numpy as np
 import pytest
+import truthcases
 
 from mr_suspension.identification import data as dataio
 from mr_suspension.identification import sensors
@@ -226,10 +227,16 @@ def test_vrths_earthquake_record_has_no_finding():
 
 
 def test_package_generator_records_have_no_finding():
+    """Fault-free records raise no data finding: the package's own generator and the truth rig.
+
+    ``synthetic.make_record`` is kept here on purpose: the check is of its records, no fit.
+    """
     from mr_suspension.identification import synthetic
 
     rec, _ = synthetic.make_record((), seed=4, duration=10.0)
     assert rec.findings == () and _only_edges_masked(rec)
+    truth = truthcases.record(truthcases.case(29000, (), sensor_faults=(), duration=10.0).columns)
+    assert truth.findings == () and _only_edges_masked(truth)
 
 
 def test_motion_cutoff_keeps_the_motion_and_drops_white_noise():

@@ -459,13 +459,12 @@ print(h.hexdigest())
 
 
 def test_a_case_is_the_same_data_from_a_fresh_compile_and_from_numbas_cache(tmp_path):
-    """The benchmark's records must not depend on the compile state of the truth's kernels.
+    """A truth case's records must not depend on the compile state of the truth's kernels.
 
-    With ``fastmath`` they did: the force of one case differed by up to one ulp between a
-    process that compiled the kernels and one that loaded them from numba's cache (9.1e-13 N
-    in 6785 of 12000 samples), and a chaotic selection turned that into another cause set
-    (1.22 or 2.49 floors on seed-1 case 142). Two processes, one cache folder: the first
-    compiles and writes it, the second loads it.
+    A difference of one ulp in the force between a process that compiled the kernels and
+    one that loaded them from numba's cache (as ``fastmath`` allows) is enough for a chaotic
+    selection to name another cause set. Two processes, one cache folder: the first
+    compiles and writes it, the second loads it; every column must be bit-identical.
     """
     env = {**os.environ, 'NUMBA_CACHE_DIR': str(tmp_path / 'numba')}
     out = [subprocess.run([sys.executable, '-c', _DIGEST], env=env, capture_output=True,
