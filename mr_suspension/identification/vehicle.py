@@ -1275,7 +1275,11 @@ def corner_params(P, final, road):
 
 
 def run(records, nominal=None, effects=ALL_EFFECTS, progress=None):
-    """Diagnose a corner from its records; returns a :class:`VehicleDiagnosis`."""
+    """Diagnose a corner from its records.
+
+    Returns ``(VehicleDiagnosis, Prepared, predictions)``: the typed result, the prepared
+    data it was fitted on and the outer-block predictions of baseline and extended model.
+    """
     nominal = nominal or Nominal.load()
     bad = [e for e in effects if e not in ALL_EFFECTS]
     if bad:
