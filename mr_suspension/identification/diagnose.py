@@ -965,10 +965,7 @@ def _delay_on_top(ds, fit, steps, tick, label, stage):
     With a series spring in ``fit`` the model without the delay gets the same effort as the
     one with it: a refit from ``fit`` alongside (the lower training SSE kept). The separable
     iteration settles slowly behind a soft spring, and the delay's own fit, one more pass
-    from the same start, took the settling as its gain (seed-1 case 142, a Bouc-Wen damper
-    behind a 1.02e5 N/m spring, with the viscous slope bounded at zero, a variant not kept:
-    a 0.2 ms delay "gained" 87 % at fold t 53; the pair alone went 2.1e7 -> 5.1e6 in
-    training SSE on a plain refit).
+    from the same start, would take the settling as its gain.
     """
     jobs = {'with': (f'{label} with channel_delay', lambda: engine.fit(
         ds, ('channel_delay',) + fit.effects, start_eta=fit.eta, start_theta=fit.theta,
@@ -1689,9 +1686,8 @@ def _beyond_room(ds, final, chosen, physics, floor, tick):
 
     The selection stops at ``MAX_CAUSES`` physical causes, and the full-rate stages that add
     one (fine current timing, physics screened again) need room; a damper with three named
-    effects and the driver's own sub-sample lag (a DAC's hold: a 1 ms dead time) kept its
-    error at every current edge (seed 1 case 262 of the benchmark: 4.1 noise floors on an
-    unseen record; 1.9 with the dead time). So where the final model's held-out RMS on the
+    effects and the driver's own sub-sample lag (a DAC's hold: a 1 ms dead time) keeps its
+    error at every current edge. So where the final model's held-out RMS on the
     inner folds stays above ``ROOM_FACTOR`` times the noise floor (``noise.estimate``, the
     data's own repeats), every cause not named yet is fitted on top of it at the full rate
     (``_fine_stage``: the current timing on its local grids, the rest on their whole grids,
