@@ -358,8 +358,8 @@ def identify_driver(records, nominal=None):
         # Each deviation must pay by itself: the fit with that part held at the nominal and
         # the rest refitted is materially worse (dead time and lags trade at a sample's scale).
         dev = []
-        c_dead = _polish_lags(recs, nominal.dead_time, tr, tf)[0]
-        if abs(dead - nominal.dead_time) >= 0.5 * dt and 1.0 - c / c_dead >= G_MIN:
+        if (abs(dead - nominal.dead_time) >= 0.5 * dt
+                and 1.0 - c / _polish_lags(recs, nominal.dead_time, tr, tf)[0] >= G_MIN):
             dev.append('driver_delay')
         c_lag = min(_driver_error(recs, d, nominal.tau_rise, nominal.tau_fall)
                     for d in deads[np.abs(deads - dead) <= 2.5 * dt])
@@ -461,13 +461,13 @@ def beats(a, b, t_tie=TIE_T):
     return pooled > 0 and t >= t_tie
 
 
-def pick_best(fits, names=None):
+def pick_best(fits):
     """Name of the fit with the lowest held-out error, a near-tie going to the simpler one.
 
     ``fits`` maps effect names to fits. The lowest held-out MSE wins unless a simpler fit
     (``simplicity``) is not beaten by it (``beats``): then the simplest such fit is taken.
     """
-    names = list(fits) if names is None else list(names)
+    names = list(fits)
     best = min(names, key=lambda e: (fits[e].test.sum(), simplicity(e)))
     for e in sorted(names, key=simplicity):
         if e == best or not beats(fits[best].test, fits[e].test):
@@ -932,7 +932,7 @@ def _lagging_force_pays(ds, base, singles, physics, steps, tick, share):
     # hand the delay a weak rival.
     ranked = sorted(others, key=lambda e: singles[e].test.sum())[:2]
     pairs = {e: _loop_pair(ds, base, loop, e) for e in ranked}
-    b = pick_best(pairs, ranked)
+    b = pick_best(pairs)
     pair = pairs[b]
     ok = _delay_on_top(ds, pair, steps, tick, f'partial hysteresis + {b}', 'channel_delay on '
                        'top of a partial pre-yield loop and the best physical single, against '
