@@ -120,9 +120,12 @@ def test_realtime_agrees_with_offline(scenario, controller):
     """Real time, one executor for all three nodes (the worst case for late forces).
 
     What real time changes: late forces (tangent coupling) and one sample of command latency.
+    The watchdogs are widened to 0.5 s: a host that stalls the executor for tens of
+    milliseconds would otherwise (correctly) put the node set into its fallback current, a
+    change of control law that the fail-safe tests judge, not this one.
     """
     road = SCENARIOS[scenario]
-    nodes, counters = run_in_process(road, 2.0, controller, False)
+    nodes, counters = run_in_process(road, 2.0, controller, False, watchdog_timeout=0.5)
     offline = offline_summary(corner_config(controller=controller), road, 2.0)
     diffs = agreement(nodes, offline)
     print(scenario, controller, 'real time, late forces', counters['late_forces'], diffs)
@@ -132,9 +135,12 @@ def test_realtime_agrees_with_offline(scenario, controller):
 
 @pytest.mark.parametrize('after_force', [True, False])
 def test_realtime_agrees_with_either_sensor_order(after_force):
-    """Sensors held back until the force is in (default) or published at once: within 2 %."""
+    """Sensors held back until the force is in (default) or published at once: within 2 %.
+
+    Watchdogs widened as in :func:`test_realtime_agrees_with_offline`.
+    """
     road = SCENARIOS['bump']
-    nodes, counters = run_in_process(road, 1.0, 'skyhook_onoff', False,
+    nodes, counters = run_in_process(road, 1.0, 'skyhook_onoff', False, watchdog_timeout=0.5,
                                      sensors_after_force=after_force)
     offline = offline_summary(corner_config(controller='skyhook_onoff'), road, 1.0)
     for key, diff in agreement(nodes, offline).items():

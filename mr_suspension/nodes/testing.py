@@ -46,15 +46,16 @@ def add(executor, nodes, node):
 
 
 def run_in_process(road, duration, controller, lockstep, coupling_delay=None, damper=None,
-                   **plant_params):
+                   watchdog_timeout=None, **plant_params):
     """Run plant, controller and actuator in one executor; return (summary, plant counters).
 
     The summary has the RMS body acceleration, working space and dynamic tyre load of the
     plant's samples, as :func:`mr_suspension.nodes.launch.offline_summary` has them; the
     counters are the plant's late forces, re-sends and repeated forces. ``coupling_delay``
     (plant and actuator; default from ``config/nodes``); ``damper`` (all nodes; default from
-    ``config/nodes``); ``plant_params`` override further plant parameters (``resend_after``,
-    ...).
+    ``config/nodes``); ``watchdog_timeout`` [s] replaces the controller's ``sensor_timeout``
+    and the actuator's ``command_timeout`` (default from ``config/nodes``); ``plant_params``
+    override further plant parameters (``resend_after``, ...).
     """
     common_p = {'lockstep': lockstep, 'controller': controller}
     if damper is not None:
@@ -62,6 +63,10 @@ def run_in_process(road, duration, controller, lockstep, coupling_delay=None, da
     if coupling_delay is not None:
         plant_params['coupling_delay'] = coupling_delay
     act_p = {} if coupling_delay is None else {'coupling_delay': coupling_delay}
+    ctl_p = {}
+    if watchdog_timeout is not None:
+        ctl_p['sensor_timeout'] = watchdog_timeout
+        act_p['command_timeout'] = watchdog_timeout
     with ros_context() as (ctx, ex, nodes):
         plant = add(ex, nodes, PlantNode(context=ctx, parameter_overrides=params(
             road=road, duration=duration, start_delay=0.05, exit_at_end=False, **common_p,
@@ -76,7 +81,8 @@ def run_in_process(road, duration, controller, lockstep, coupling_delay=None, da
             tyre.append(p.f_t - p.static_tyre_load)
 
         plant._advance = record
-        add(ex, nodes, ControllerNode(context=ctx, parameter_overrides=params(**common_p)))
+        ctl_params = params(**common_p, **ctl_p)
+        add(ex, nodes, ControllerNode(context=ctx, parameter_overrides=ctl_params))
         act_params = params(**common_p, **act_p)
         add(ex, nodes, ActuatorNode(context=ctx, parameter_overrides=act_params))
         if not common.spin_until(ex, lambda: plant.plant.done, 60.0):
