@@ -149,7 +149,8 @@ def _law_list(text):
 def cmd_demo(args):
     """Run the default scenario set: bump and ISO 8608 road, semi-active vs passive.
 
-    Then the quick tuning study (:func:`demo_tuning`) and the node set.
+    Then the quick tuning study (:func:`demo_tuning`), the node set and a diagnosis of real
+    rig data (``identification.cli.demo``).
     """
     out = output_dir(args.out)
     cfgs = {name: build_corner(name, 'city_car', 'rd1005_bingham', 'wonder_box')
@@ -166,6 +167,7 @@ def cmd_demo(args):
     text = '\n'.join(lines)
     (out / 'metrics.md').write_text(text)
     print(text)
+    rc = 0
     if not args.no_nodes:
         try:
             nodes_cli = importlib.import_module('mr_suspension.nodes.cli')
@@ -173,9 +175,12 @@ def cmd_demo(args):
             if exc.name != 'mr_suspension.nodes.cli':
                 raise
         else:
-            return nodes_cli.demo(out / 'nodes')
+            rc = nodes_cli.demo(out / 'nodes')
+    if not args.no_diagnosis:
+        from mr_suspension.identification import cli as diag_cli
+        rc = diag_cli.demo(out / 'diagnose', args.vrths) or rc
     print(f'wrote {out}/')
-    return 0
+    return rc
 
 
 DEMO_LAWS = ('skyhook_onoff', 'skyhook', 'hybrid', 'add', 'sh_add', 'pdd', 'clipped_optimal')
@@ -239,9 +244,16 @@ def build_parser():
                                    'skyhook vs passive at 0 A and 1 A; a quick tuning of the '
                                    'laws with the carpet plot against the passive damper '
                                    '(out/tune); then the ROS 2 node set with a recorded bag '
-                                   'when available.')
+                                   'when available; finally a diagnosis of real rig data '
+                                   '(six vrths sine tests, validated on its earthquake '
+                                   'record) into out/diagnose.')
     p.add_argument('--out', default='out/demo', help='output directory')
     p.add_argument('--no-nodes', action='store_true', help='skip the ROS 2 node-set run')
+    p.add_argument('--no-diagnosis', action='store_true',
+                   help='skip the diagnosis of the shared vrths rig data')
+    p.add_argument('--vrths', default=None, metavar='DIR',
+                   help='the vrths data folder (default: ../shared/data/vrths from the working '
+                        'directory, then from the source tree)')
     p.add_argument('--quick-laws', default=','.join(DEMO_LAWS), type=_law_list,
                    help='laws tuned for the carpet plot (default: %(default)s)')
     p.set_defaults(func=cmd_demo)

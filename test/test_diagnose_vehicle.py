@@ -310,3 +310,25 @@ def test_a_friction_or_stop_that_feeds_energy_in_is_not_a_cause():
     assert not vehicle.physical(fit('bump_stop', 'k_bs', -1e3), 'bump_stop')
     # a softening cubic spring is physical
     assert vehicle.physical(fit('spring_nonlinearity', 'k_s3', -1e3), 'spring_nonlinearity')
+
+
+@pytest.mark.parametrize('fy0_factor', [1.0, 3.0])
+def test_a_refitted_yield_force_and_strut_friction_are_one_signal(fy0_factor):
+    """The current-free yield force refitted far from its nominal: friction could hold it.
+
+    Strut friction ``f tanh(v / v_fric)`` draws the regressor of ``fy0 tanh(v / v_y)``. With
+    the nominal damper right, the refit stays near it and nothing is said; with a nominal
+    ``fy0`` three times the car's, the refit moves by 2/3 of it and the pair is ambiguous.
+    """
+    import dataclasses
+    from mr_suspension.truth.vehicle import make_vehicle_case
+    nominal = vehicle.Nominal.load()
+    d = nominal.damper
+    nom = dataclasses.replace(nominal, damper=dataclasses.replace(d, fc0=fy0_factor * d.fc0))
+    case = make_vehicle_case(7_000_112, effects=(), duration=20.0)
+    P = vehicle.Prepared([vehicle_data.build('c', case.columns)], nom)
+    base = vehicle.evaluate(P, (), vehicle.base_eta(nom, P.coil), P.search_rows)
+    pairs = vehicle.baseline_aliases(P, base, ('strut_friction', 'bump_stop'), P.search_rows)
+    assert pairs == ([] if fy0_factor == 1.0 else [('strut_friction', 'fy0')])
+    if pairs:
+        assert 'rig' in vehicle.SEPARATING[frozenset(pairs[0])]

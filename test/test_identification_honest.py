@@ -472,7 +472,7 @@ def test_estimator_predicts_and_scores_an_unseen_record():
     # Driven twice as fast, the same damper leaves the fitted range: predict says so.
     from dataclasses import replace
     fast = replace(rec, velocity=2.0 * rec.velocity, displacement=2.0 * rec.displacement)
-    with pytest.warns(UserWarning, match='outside the range the model was fitted on'):
+    with pytest.warns(UserWarning, match='outside the domain the model was fitted on'):
         est.predict(fast)
     with pytest.raises(RuntimeError):
         diagnose.Diagnosis().predict(rec)

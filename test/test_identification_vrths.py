@@ -38,18 +38,22 @@ def test_vrths_verdict_and_gain():
     assert phys[0]['effect'] == 'series_stiffness'
     assert 1.5e6 < phys[0]['parameters']['k_series'] < 2e7
     assert {'current_delay', 'current_lag', 'current_lag_asymmetric'} <= set(rep['untestable'])
-    assert rep['heldout']['source'] == 'outer blocks'
+    ho = rep['heldout']
+    assert {'outer_blocks', 'forward'} <= set(ho) and ho['headline'] in ('outer', 'pooled')
+    assert ho['forward']['kept_back'].startswith('3 whole records of 15')
     assert rep['gain'] >= 0.40
     assert rep['noise_floor'] is not None and rep['noise_floor']['nrmse'] < 0.02
     assert rep['verdict'] == 'partly_explained'
     # Where the residual lives: eight quantile bins of |v| over the outer blocks (equal sample
-    # counts), so the mean of the bins' squared NRMSE is the delivered model's outer MSE over
+    # counts), so the mean of the bins' squared NRMSE is the extended model's outer MSE over
     # the data's force variance.
     rmap = rep['residual_map']['abs_velocity']
     assert len(rmap['nrmse']) == 8 and None not in rmap['nrmse']
     assert rmap['edges'][0] >= 0.0 and np.all(np.diff(rmap['edges']) > 0.0)
     bins_mse = np.mean(np.square(rmap['nrmse'])) * res.dataset.f_std ** 2
-    assert bins_mse == pytest.approx(res.heldout['extended_mse'], rel=0.01)
+    outer = ho['outer_blocks']
+    assert bins_mse == pytest.approx((outer['extended_nrmse'] * outer['force_std']) ** 2,
+                                     rel=0.01)
     assert rep['validation']['gain'] >= 0.20
     assert rep['validation']['extended_nrmse'] < rep['validation']['baseline_nrmse']
 

@@ -227,23 +227,86 @@ def cmd_diagnose(args):
         print(f'warning: {res.notes["current"]} (c1 and fy1 are not identifiable; record '
               'several current levels, see mr-suspension doe)', file=sys.stderr)
     if not args.quiet:
-        causes = ', '.join(f'{c["effect"]} ({c["location"]})' for c in rep['causes']) or 'none'
-        nf = rep['noise_floor']
-        floor = f', noise floor {nf["nrmse"]:.4f}' if nf else ', noise floor not estimable'
-        print(f'verdict: {rep["verdict"]}; causes: {causes}; held-out NRMSE baseline '
-              f'{rep["baseline"]["heldout_nrmse"]:.4f} -> extended '
-              f'{rep["extended"]["heldout_nrmse"]:.4f} (gain {rep["gain"]:.1%}){floor}')
-        if rep['ambiguous']:
-            print('ambiguous: ' + '; '.join('/'.join(p) for p in rep['ambiguous']))
-        if rep['untestable']:
-            print('untestable with these data: ' + ', '.join(rep['untestable'])
-                  + ' (see mr-suspension doe)')
-        if 'validation' in rep:
-            v = rep['validation']
-            print(f'validation NRMSE baseline {v["baseline_nrmse"]:.4f} -> extended '
-                  f'{v["extended_nrmse"]:.4f} (gain {v["gain"]:.1%})')
+        print(summary_text(rep))
         print(f'wrote {Path(args.out) / "report.md"}')
     return 0
+
+
+DEMO_TESTS = ('10mm1Hz0A', '10mm1Hz0x5A', '10mm1Hz1A', '5mm3Hz0A', '5mm3Hz0x5A', '5mm3Hz1A')
+
+
+def find_vrths(folder=None):
+    """Return the vrths rig data folder (holding ``preprocessed_sine``), or None.
+
+    ``folder`` when given; else ``../shared/data/vrths`` from the working directory, then
+    from the source tree.
+    """
+    shared = Path('..') / 'shared' / 'data' / 'vrths'
+    cands = [Path(folder)] if folder else [Path.cwd() / shared,
+                                           Path(__file__).resolve().parents[2] / shared]
+    for d in cands:
+        if (d / 'preprocessed_sine').is_dir():
+            return d.resolve()
+    return None
+
+
+def demo(out_dir, vrths=None):
+    """Demo step: diagnose six real sine tests of vrths, validate on its earthquake record.
+
+    Two sine programmes (10 mm at 1 Hz, 5 mm at 3 Hz) at 0, 0.5 and 1 A; the report (verdict,
+    causes, outer-block and kept-back figures, the learned reference) goes to ``out_dir``.
+    """
+    d = find_vrths(vrths)
+    if d is None:
+        print('diagnosis demo skipped: no ../shared/data/vrths beside the repository')
+        return 0
+    files = [d / 'preprocessed_sine' / f'{name}.txt' for name in DEMO_TESTS]
+    quake = d / 'validation' / 'validacion.mat'
+    from mr_suspension.core.config import load_driver
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')  # the input notes are in the report
+        rep, _, _ = diagnose_to_dir([str(f) for f in files], output_dir(out_dir),
+                                    dataio.LoadOptions(), engine.ALL_EFFECTS, 5,
+                                    load_driver('wonder_box'),
+                                    [str(quake)] if quake.exists() else [], make_plots=True)
+    print(summary_text(rep))
+    print(f'wrote {Path(out_dir) / "report.md"}')
+    return 0
+
+
+def summary_text(rep):
+    """Short summary of a rig diagnosis report: verdict, causes, the held-out figures."""
+    causes = ', '.join(f'{c["effect"]} ({c["location"]})' for c in rep['causes']) or 'none'
+    nf = rep['noise_floor']
+    floor = f', noise floor {nf["nrmse"]:.4f}' if nf else ', noise floor not estimable'
+    ho = rep['heldout']
+    lines = [f'verdict: {rep["verdict"]}; causes: {causes}; held-out NRMSE baseline '
+             f'{rep["baseline"]["heldout_nrmse"]:.4f} -> extended '
+             f'{rep["extended"]["heldout_nrmse"]:.4f} (gain {rep["gain"]:.1%}; {ho["source"]})'
+             + floor]
+    for key, what in (('outer_blocks', 'outer blocks'), ('forward', 'kept back')):
+        if key in ho:
+            f = ho[key]
+            lines.append(f'  {what}: baseline {f["baseline_nrmse"]:.4f}, extended '
+                         f'{f["extended_nrmse"]:.4f} +- {f["extended_se"]:.4f}')
+    ref = rep.get('reference')
+    if ref:
+        lines.append(f'  learned reference ({ref["model"]}): {ref["heldout_nrmse"]:.4f} '
+                     f'({ref["verdict_note"]})')
+    if rep['ambiguous']:
+        lines.append('ambiguous: ' + '; '.join('/'.join(p) for p in rep['ambiguous']))
+    if rep['untestable']:
+        lines.append('untestable with these data: ' + ', '.join(rep['untestable'])
+                     + ' (see mr-suspension doe)')
+    if 'validation' in rep:
+        v = rep['validation']
+        ref_v = (f', learned reference {v["reference_nrmse"]:.4f}'
+                 if v.get('reference_nrmse') is not None else '')
+        lines.append(f'validation NRMSE baseline {v["baseline_nrmse"]:.4f} -> extended '
+                     f'{v["extended_nrmse"]:.4f} (gain {v["gain"]:.1%}){ref_v}')
+        for line in v.get('domain', ()):
+            lines.append(f'  outside the fitted domain: {line}')
+    return '\n'.join(lines)
 
 
 def cmd_diagnose_fleet(args):

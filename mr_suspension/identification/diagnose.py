@@ -19,12 +19,14 @@ import copy
 from dataclasses import dataclass
 import functools
 import os
+import warnings
 
 from numba import njit
 import numpy as np
 
 from mr_suspension.identification import data as dataio
-from mr_suspension.identification import engine, model_io, noise
+from mr_suspension.identification import domain as dom_mod
+from mr_suspension.identification import engine, forward, model_io, noise, reference
 from mr_suspension.identification.denoise import denoise_current
 
 G_MIN = 0.03
@@ -41,6 +43,10 @@ CLEAR_LOSS = 0.6
 SCREEN_FIXED = ()  # parameters screening fits keep at the parent's value (none: see docs)
 MAX_SECONDS = 300.0  # longer data are judged on windows spread over it (data.limit_duration)
 PARTLY_FACTOR = 2.0  # extended held-out NRMSE above this many noise floors: partly explained
+# The learned reference beats the extended model by this held-out MSE reduction (and T_MIN):
+# partly explained. 0.25 in MSE is 1.155x in RMS: a model within 1.15x the noise floor is
+# never beaten, since no reference predicts below the floor.
+REF_GAIN = 0.25
 UPGRADE = 'current_lag->current_lag_asymmetric'
 FINE = ('current_delay', 'current_lag')  # current timing below the search rate's step
 TIMING = ('current_delay', 'current_lag', 'current_lag_asymmetric')
@@ -672,7 +678,9 @@ class DiagnosisResult:
     model on the outer blocks no fit or selection touched; ``floor`` the noise floor estimated
     from the data (``noise.NoiseFloor`` or None); ``residual_map`` where the extended model's
     outer residual lives; ``fitted_range`` the input range of the fitted records
-    (``model_io.fitted_range``).
+    (``model_io.fitted_range``); ``domain`` the fitted domain (``domain.Domain``) that
+    ``predict``, ``score`` and the validation check new records against; ``reference`` the
+    learned reference's figures (``reference.Comparison``) or None.
     """
 
     dataset: object
@@ -700,6 +708,9 @@ class DiagnosisResult:
     input_kind: str
     fitted_range: dict
     hedge: object = None
+    domain: object = None
+    reference: object = None
+    reference_model: object = None
 
     @property
     def predictors(self):
@@ -1724,6 +1735,196 @@ def outer_mse(ds, *fits):
     return float(np.mean(np.concatenate(err))) if err else float('nan')
 
 
+def _runs(m):
+    """``(start, stop)`` of the contiguous True runs of a boolean array."""
+    d = np.diff(np.concatenate(([0], m.astype(np.int8), [0])))
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+def _prediction(record, fits):
+    """Force of ``fits`` (physical models) or of a learned reference on ``record``."""
+    if isinstance(fits, LearnedReference):
+        return fits.predict(record)
+    return predict_force(record, fits)
+
+
+def outer_errors(ds, fits):
+    """``(errors, forces)`` per contiguous outer run of ``_prediction(fits)``."""
+    err, force = [], []
+    for r, sl in zip(ds.records, ds.slices):
+        m = ds.outer[sl]
+        if m.any():
+            e = r.force - _prediction(r, fits)
+            for a, b in _runs(m):
+                err.append(e[a:b])
+                force.append(r.force[a:b])
+    return err, force
+
+
+def outer_score(ds, fits):
+    """``forward.Score`` of ``predict_force(fits)`` on the outer blocks, one block per run."""
+    return forward.block_score(*outer_errors(ds, fits))
+
+
+def kept_back_errors(held, fits):
+    """``(errors, forces)`` per ``forward.N_BLOCKS`` block of kept-back parts.
+
+    The model runs over the whole record (its states reach the part with their history);
+    usable samples from ``start`` on are scored.
+    """
+    err, force = [], []
+    for r, k in held:
+        m = np.asarray(r.mask, dtype=bool)[k:]
+        err.append((r.force - _prediction(r, fits))[k:][m])
+        force.append(r.force[k:][m])
+    e = np.concatenate(err) if err else np.zeros(0)
+    return ([b for b in np.array_split(e, forward.N_BLOCKS) if b.size],
+            [np.concatenate(force)] if force else [])
+
+
+def kept_back_score(held, fits):
+    """``forward.Score`` of ``predict_force(fits)`` on kept-back parts ``(record, start)``."""
+    return forward.block_score(*kept_back_errors(held, fits))
+
+
+@dataclass(frozen=True)
+class LearnedReference:
+    """The extended model plus gradient-boosted trees on its residual (``reference``).
+
+    The trees learn from the inputs and their last ``reference.LAG_MAX`` what the physical
+    model leaves: where they predict part of its held-out error, that part is predictable
+    from the inputs but not modelled; where they do not, the rest is noise or needs a longer
+    memory. Boosting from a physical prediction rather than from a constant spends the
+    trees on the residual, which is small and local, instead of on the yield step, which
+    piecewise-constant trees approximate coarsely.
+    """
+
+    fits: tuple
+    trees: reference.Reference
+
+    def predict(self, record):
+        """Force [N]: the physical prediction plus the trees' correction."""
+        return predict_force(record, self.fits) + self.trees.predict(record)
+
+
+def learned_reference(ds, fits):
+    """``LearnedReference`` on the residual of ``fits`` over the inner folds, or None."""
+    masks = [ds.fold[sl] >= 0 for sl in ds.slices]
+    recs = [dataio.with_force(r, r.force - predict_force(r, fits)) for r in ds.records]
+    try:
+        return LearnedReference(tuple(fits), reference.fit_reference(recs, masks))
+    except ValueError:
+        return None
+
+
+@dataclass(frozen=True)
+class ReferenceComparison:
+    """The learned reference against the extended model on the same held-out blocks.
+
+    ``nrmse``: the reference's held-out NRMSE per source (``outer_blocks``, ``forward``)
+    and ``heldout`` for the headline's; ``gain`` the pooled MSE reduction of the reference
+    over the extended model and ``t`` its block-to-block t statistic (the selection's rule,
+    ``_pays``, between the two); ``beats`` when ``gain >= REF_GAIN`` and ``t >= T_MIN``.
+    """
+
+    nrmse: dict
+    gain: float
+    t: float
+    blocks: int
+
+    @property
+    def beats(self):
+        """True when the reference is materially and consistently better."""
+        return self.gain >= REF_GAIN and self.t >= T_MIN
+
+
+def compare_reference(errs, source):
+    """``ReferenceComparison`` from ``{source: ((ext errors, forces), (ref errors, forces))}``.
+
+    Blocks of the headline's source (both where it pools them). None without blocks.
+    """
+    use = [k for k in (('outer', 'forward') if source == 'pooled' else (source,)) if k in errs]
+    if not use:
+        use = list(errs)
+    if not use:
+        return None
+    nrmse = {}
+    for k, ((_, f), (re_, _)) in errs.items():
+        sc = forward.block_score(re_, f)
+        nrmse['outer_blocks' if k == 'outer' else k] = None if sc is None else sc.nrmse
+    ext = [np.mean(e ** 2) for k in use for e in errs[k][0][0]]
+    ref = [np.mean(e ** 2) for k in use for e in errs[k][1][0]]
+    n = [e.size for k in use for e in errs[k][0][0]]
+    ext, ref, n = np.array(ext), np.array(ref), np.array(n)
+    if not ext.size or not np.all(ext > 0):
+        return None
+    gain = 1.0 - float(np.sum(ref * n) / np.sum(ext * n))
+    d = 1.0 - ref / ext
+    t = float(np.mean(d) / (np.std(d, ddof=1) / np.sqrt(d.size))) if d.size > 1 and np.std(
+        d) > 0 else 0.0
+    f_all = np.concatenate([x for k in use for x in errs[k][0][1]])
+    nrmse['heldout'] = float(np.sqrt(np.sum(ref * n) / np.sum(n)) / (np.std(f_all) or 1.0))
+    return ReferenceComparison(nrmse=nrmse, gain=gain, t=t, blocks=int(d.size))
+
+
+def headline(heldout, scores, split):
+    """Return the report's held-out figures: outer blocks, kept-back data, or both pooled.
+
+    ``scores``: ``{'outer': (baseline, extended), 'forward': (baseline, extended)}`` of
+    ``forward.Score``. The extended model's two figures decide (``forward.compare``): where
+    they differ by more than their uncertainty the more pessimistic heads the report, else
+    both are pooled. ``heldout`` (the outer-block figures) gets ``outer_blocks``, ``forward``
+    and ``source``; its MSE and NRMSE entries become the headline's.
+    """
+    out = dict(heldout)
+    blocks = scores.get('outer')
+    fwd = scores.get('forward')
+    for key, sc in (('outer_blocks', blocks), ('forward', fwd)):
+        if sc is not None and sc[1] is not None:
+            out[key] = {'baseline_nrmse': sc[0].nrmse, 'extended_nrmse': sc[1].nrmse,
+                        'extended_se': sc[1].se, 'samples': sc[1].samples,
+                        'force_std': sc[1].std}
+    if 'forward' in out:
+        out['forward']['kept_back'] = split.how
+        out['forward']['seconds'] = split.seconds
+    if fwd is None or fwd[1] is None:
+        return out
+    src = forward.compare(blocks[1] if blocks else None, fwd[1])
+    out['headline'] = src
+    if src == 'outer':
+        out['source'] += ' (more pessimistic than the kept-back data)'
+        return out
+    if src == 'forward':
+        b, e = fwd
+        std = e.std
+        out.update(baseline_mse=b.mse, extended_mse=e.mse, std=std,
+                   baseline_nrmse=b.nrmse, extended_nrmse=e.nrmse,
+                   source='kept-back data (' + split.how + '), worse than the outer blocks')
+        if blocks and blocks[1].nrmse > 0:
+            out['forward_over_blocks'] = e.nrmse / blocks[1].nrmse
+    else:
+        out['baseline_nrmse'] = forward.pooled(blocks[0], fwd[0])
+        out['extended_nrmse'] = forward.pooled(blocks[1], fwd[1])
+        n = blocks[1].samples + fwd[1].samples
+        out['baseline_mse'] = (blocks[0].mse * blocks[0].samples + fwd[0].mse * fwd[0].samples) / n
+        out['extended_mse'] = (blocks[1].mse * blocks[1].samples + fwd[1].mse * fwd[1].samples) / n
+        out['std'] = float(np.sqrt(out['extended_mse']) / out['extended_nrmse'])
+        out['source'] = 'outer blocks and kept-back data pooled (they agree)'
+    out.pop('hedged_mse', None)
+    out.pop('hedged_nrmse', None)
+    return out
+
+
+def run_drift(records, driver, fit):
+    """``forward.drift`` of ``fit`` over whole records in the order given (run order)."""
+    segs = []
+    for r in records:
+        r = denoise_current(r, driver)
+        f = predict_force(r, (fit,))
+        segs.append((r.time, r.force, f, np.asarray(r.mask, dtype=bool), r.temperature))
+    return forward.drift(segs)
+
+
 def residual_map(ds, fit, bins=8):
     """Where the outer-block residual lives: RMS over |velocity|, current and frequency bands."""
     res, v, cur = [], [], []
@@ -1787,6 +1988,23 @@ def all_data(ds_all, fit):
     return out
 
 
+def fitted_domain(records):
+    """``domain.fit_domain`` of the fitted records, or None when it cannot be fitted."""
+    try:
+        return dom_mod.fit_domain(records)
+    except ValueError:
+        return None
+
+
+def domain_lines(res, record):
+    """``(DomainCheck or None, lines)``: ``record`` against the domain ``res`` was fitted on."""
+    if res.domain is None:
+        return None, []
+    chk = dom_mod.check(record, res.domain)
+    return chk, [f'{record.name}: outside the domain the model was fitted on: {line}'
+                 for line in chk.lines()]
+
+
 def _floor(records):
     try:
         return noise.estimate(records)
@@ -1809,15 +2027,19 @@ def _loop_restarts(ds, final, stage, tick, k1_factors=(1,)):
 
 
 def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_rate=SEARCH_RATE,
-        outer=True, nominal_driver=None):
+        outer=True, nominal_driver=None, keep_back=True):
     """Diagnose records; return a ``DiagnosisResult`` (see ``Diagnosis`` for the method).
 
     The selection runs on records decimated to about ``search_rate`` Hz (speed) on the inner
     folds only; the baseline and the final model are refitted at the full rate on the inner
     folds and scored on the outer blocks (``outer``), which neither the selection nor any
-    parameter search saw.
+    parameter search saw, and on the data kept back after them (``keep_back``:
+    ``forward.split``), which nothing but that score saw.
     """
-    full, long_note = dataio.limit_duration(list(records), MAX_SECONDS)
+    records = list(records)
+    split = (forward.split(records, dataio.window) if keep_back
+             else forward.Split(tuple(records), (), 'none'))
+    full, long_note = dataio.limit_duration(list(split.train), MAX_SECONDS)
     # The noise floor depends on the data alone: worked out alongside.
     floor_job = _background(lambda: _floor(full))
     # The driver first: the command through it cleans the measured coil current's noise.
@@ -1950,23 +2172,44 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     heldout['extended_nrmse'] = float(np.sqrt(heldout['extended_mse']) / heldout['std'])
     if 'hedged_mse' in heldout:
         heldout['hedged_nrmse'] = float(np.sqrt(heldout['hedged_mse']) / heldout['std'])
+    rmap = residual_map(ds, final if chosen else base) if ds.outer.any() else {}
+    findings = tuple(f for r in full for f in getattr(r, 'findings', ()) or ())
+    scores = {}
+    ref_fit = learned_reference(ds, (final if chosen else base,))
+    ref_errs = {}
+    if outer and ds.outer.any():
+        scores['outer'] = (outer_score(ds, (base,)),
+                           outer_score(ds, (final if chosen else base,)))
+        if ref_fit is not None:
+            ref_errs['outer'] = (outer_errors(ds, (final if chosen else base,)),
+                                 outer_errors(ds, ref_fit))
+        # Scored: now the delivered models take the outer blocks too.
+        ds_all = engine.Dataset(full, n_folds=n_folds, outer=False)
+        base = all_data(ds_all, base)
+        final = all_data(ds_all, final) if chosen else base
+        hedge = all_data(ds_all, hedge) if hedge is not None else None
+    if split.held:
+        held = [(denoise_current(r, driver), k) for r, k in split.held]
+        scores['forward'] = (kept_back_score(held, (base,)),
+                             kept_back_score(held, (final if chosen else base,)))
+        if ref_fit is not None:
+            ref_errs['forward'] = (kept_back_errors(held, (final if chosen else base,)),
+                                   kept_back_errors(held, ref_fit))
+    heldout = headline(heldout, scores, split)
+    ref_cmp = compare_reference(ref_errs, heldout.get('headline', 'outer'))
+    if heldout.get('headline') == 'forward':
+        heldout['drift'] = run_drift(records, driver, final if chosen else base)
     floor = noise.bounded(floor_raw, float(np.sqrt(heldout['extended_mse'])))
     ambiguous = tuple(p for p in ambiguous if set(p) & set(order))
     phys = [e for e in order if locations[e] != 'sensor']
     verdict = 'none' if not phys else ('ambiguous' if ambiguous else 'named')
     if floor is not None and floor.nrmse > 0:
         heldout['floor_nrmse'] = floor.nrmse
-        heldout['extended_over_floor'] = heldout['extended_nrmse'] / floor.nrmse
+        heldout['extended_over_floor'] = float(np.sqrt(heldout['extended_mse']) / floor.rms)
         if heldout['extended_over_floor'] > PARTLY_FACTOR and verdict != 'ambiguous':
             verdict = 'partly_explained'
-    rmap = residual_map(ds, final if chosen else base) if ds.outer.any() else {}
-    findings = tuple(f for r in full for f in getattr(r, 'findings', ()) or ())
-    if outer and ds.outer.any():
-        # Scored: now the delivered models take the outer blocks too.
-        ds_all = engine.Dataset(full, n_folds=n_folds, outer=False)
-        base = all_data(ds_all, base)
-        final = all_data(ds_all, final) if chosen else base
-        hedge = all_data(ds_all, hedge) if hedge is not None else None
+    if ref_cmp is not None and ref_cmp.beats and verdict != 'ambiguous':
+        verdict = 'partly_explained'
     return DiagnosisResult(
         dataset=ds, baseline=base, final=final if chosen else base, singles=singles,
         causes=tuple(order), locations=locations, drop_loss=drop_loss, ambiguous=ambiguous,
@@ -1974,7 +2217,8 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
         verdict=verdict, base_exact=base_exact, final_exact=final_exact, heldout=heldout,
         floor=floor, residual_map=rmap, driver=driver, findings=findings,
         cause_test=cause_test, singles_base_test=parent0.test, input_kind=input_kind,
-        fitted_range=model_io.fitted_range(ds.records), hedge=hedge)
+        fitted_range=model_io.fitted_range(ds.records), hedge=hedge,
+        domain=fitted_domain(full), reference=ref_cmp, reference_model=ref_fit)
 
 
 class Diagnosis:
@@ -1989,7 +2233,7 @@ class Diagnosis:
     """
 
     def __init__(self, effects=engine.ALL_EFFECTS, n_folds=5, search_rate=SEARCH_RATE,
-                 outer=True, nominal_driver=None, progress=None):
+                 outer=True, nominal_driver=None, progress=None, keep_back=True):
         unknown = [e for e in effects if e not in engine.ALL_EFFECTS]
         if unknown:
             raise ValueError(f'unknown effect(s) {unknown}; known: {engine.ALL_EFFECTS}')
@@ -1999,12 +2243,13 @@ class Diagnosis:
         self.outer = outer
         self.nominal_driver = nominal_driver
         self.progress = progress
+        self.keep_back = keep_back
         self.result_ = None
 
     def fit(self, records):
         """Diagnose ``records`` (list of ``data.Record``); return the ``DiagnosisResult``."""
         self.result_ = run(records, self.effects, self.n_folds, self.progress,
-                           self.search_rate, self.outer, self.nominal_driver)
+                           self.search_rate, self.outer, self.nominal_driver, self.keep_back)
         return self.result_
 
     def _check(self):
@@ -2012,24 +2257,35 @@ class Diagnosis:
             raise RuntimeError('Diagnosis: call fit(records) first')
         return self.result_
 
+    def check(self, record):
+        """``domain.DomainCheck`` of a record against the fitted domain (None if unknown)."""
+        return domain_lines(self._check(), record)[0]
+
     def predict(self, record, model='extended'):
         """Force [N] of the extended (or ``'baseline'``) model on a record, as measured.
 
         The extended prediction is the mean of ``result_.predictors``: the named model and,
         where a yield shape tied with it, that shaped model (``_hedge``).
 
-        Warns (``UserWarning``) when the record leaves the input range of the fitted records
-        (``model_io.outside_range``): the prediction extrapolates there.
+        Warns (``UserWarning``), one line per kind with its time ranges, where the record
+        leaves the domain of the fitted records or shows what no damper produces
+        (``domain.check``): the prediction extrapolates there.
         """
         res = self._check()
         fits = res.predictors if model == 'extended' else (res.baseline,)
-        model_io.warn_outside(res.fitted_range, record, fits[0].params())
+        for line in domain_lines(res, record)[1]:
+            warnings.warn(line)
         record = denoise_current(dataio.for_prediction(record), res.driver)
         return predict_force(record, fits)
 
     def score(self, record, model='extended'):
-        """NRMSE (RMS error / std of the measured force) on a record never used in the fit."""
+        """NRMSE (RMS error / std of the measured force) on a record never used in the fit.
+
+        Samples outside the fitted domain (``check``) are left out of the figure.
+        """
         f = self.predict(record, model)
-        m = getattr(record, 'mask', None)
-        m = np.ones(record.n, dtype=bool) if m is None else np.asarray(m, dtype=bool)
+        m = np.asarray(record.mask, dtype=bool)
+        chk = self.check(record)
+        if chk is not None and chk.mask.any():
+            m = m & chk.mask
         return float(np.sqrt(np.mean((record.force[m] - f[m]) ** 2)) / np.std(record.force[m]))

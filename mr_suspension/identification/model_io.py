@@ -29,7 +29,7 @@ import numpy as np
 from mr_suspension.core.driver import fitted_dynamics
 from mr_suspension.core.extended import ExtendedDamperParams
 from mr_suspension.identification import data as dataio
-from mr_suspension.identification import engine
+from mr_suspension.identification import domain, engine
 from mr_suspension.identification.denoise import denoise_current
 
 FORMAT = 'mr_suspension.fitted_damper/1'
@@ -186,6 +186,11 @@ def check_model(model, path='model.json'):
                          f'{signal!r}')
     if 'fitted_range' in model:
         _check_range_block(model['fitted_range'], path)
+    if model.get('domain') is not None:
+        try:
+            domain.Domain.from_dict(model['domain'])
+        except (ValueError, TypeError, AttributeError) as exc:
+            raise ValueError(f'{path}: domain: {exc}') from None
     if model.get('hedge') is not None:
         hedge = model['hedge']
         w = hedge.get('weight') if isinstance(hedge, dict) else None
@@ -217,11 +222,16 @@ def fitted_driver(path, base=None):
 def predict(model, record):
     """Force [N] predicted by a model dictionary on a record (same path as the fit).
 
-    Warns (``UserWarning``) when the record leaves the model's ``fitted_range``.
+    Warns (``UserWarning``), one line per kind with its time ranges, where the record leaves
+    the model's fitted ``domain`` (``domain.check``); a model without one: its
+    ``fitted_range``.
     """
     check_model(model)
     params = ExtendedDamperParams.from_dict(model['damper'])
-    if 'fitted_range' in model:
+    if model.get('domain'):
+        for line in domain.check(record, model['domain']).lines():
+            warnings.warn(f'{record.name}: outside the domain the model was fitted on: {line}')
+    elif 'fitted_range' in model:
         warn_outside(model['fitted_range'], record, params)
     record = dataio.for_prediction(record)  # as Diagnosis.predict
     if model.get('driver'):

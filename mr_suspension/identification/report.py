@@ -4,13 +4,16 @@ NRMSE = RMS(measured - predicted) / std(measured force), on held-out blocks (cro
 or on separate validation records; ``gain = 1 - NRMSE_extended / NRMSE_baseline``.
 """
 
+import copy
 import json
 from pathlib import Path
 import time
 
 import numpy as np
 
-from mr_suspension.identification import diagnose, engine, model_io
+from mr_suspension.identification import diagnose, engine, model_io, reference
+
+TRANSFER_LOSS = 0.05  # a cause whose removal lowers a validation NRMSE by this share: reported
 
 BASELINE_MODEL = ('F = F0 + (c0 + c1 i) v + (fy0 + fy1 i) tanh(v / v_y), i = command through '
                   'the static driver map (seed 003 eq. 5.2)')
@@ -141,7 +144,10 @@ def build(res, records, validate=(), elapsed=None):
                          f'{diagnose.CORR_AMBIG}, and the swap of the two in the final model '
                          'is not rejected',
             'partly_explained': f'extended held-out NRMSE above {diagnose.PARTLY_FACTOR:g}x '
-                                'the noise floor estimated from the data',
+                                'the noise floor estimated from the data, or the learned '
+                                f'reference better by a held-out MSE reduction of at least '
+                                f'{diagnose.REF_GAIN:g} with a block t of at least '
+                                f'{diagnose.T_MIN:g}',
             'nrmse': 'RMS error / std of the measured force',
             'rates': f'selection on records decimated to about {diagnose.SEARCH_RATE:g} Hz '
                      '(the fold statistics in the evidence come from it); baseline, '
@@ -163,11 +169,32 @@ def build(res, records, validate=(), elapsed=None):
             'note': ('the yield shape ties with tanh on the held-out folds (not named): '
                      'predict and validation use the mean of both models, which part beyond '
                      'the fitted rates')}
+    rc = res.reference
+    if rc is not None:
+        beats = rc.beats
+        report['reference'] = {
+            'model': 'gradient-boosted trees on displacement, velocity, input and their '
+                     f'last {1e3 * reference.LAG_MAX:g} ms (reference.PARAMS)',
+            'heldout_nrmse': rc.nrmse['heldout'],
+            'outer_blocks_nrmse': rc.nrmse.get('outer_blocks'),
+            'forward_nrmse': rc.nrmse.get('forward'),
+            'mse_reduction_over_extended': rc.gain, 'block_t': rc.t, 'blocks': rc.blocks,
+            'beats_extended': beats,
+            'verdict_note': (
+                f'predicts {rc.gain:.0%} of the held-out MSE of the extended model away (t '
+                f'{rc.t:.1f}): part of the force is predictable from the inputs but not '
+                'modelled' if beats else
+                'no material, consistent gain over the extended model: the physics uses what '
+                'the inputs of the last 50 ms predict')}
     if res.verdict == 'partly_explained':
+        why = []
+        if floor is not None and ho.get('extended_over_floor', 0) > diagnose.PARTLY_FACTOR:
+            why.append(f'{ho["extended_over_floor"]:.1f}x the noise floor ({floor.nrmse:.4f})')
+        if rc is not None and rc.beats:
+            why.append(f'the learned reference reaches {rc.nrmse["heldout"]:.3f}')
         report['unexplained'] = (
-            f'the extended model leaves a held-out NRMSE of {ext_n:.3f}, '
-            f'{ho.get("extended_over_floor", float("nan")):.1f}x the noise floor '
-            f'({floor.nrmse:.4f}); see residual_map and residual_maps.png for where it lives')
+            f'the extended model leaves a held-out NRMSE of {ext_n:.3f}, ' + '; '.join(why)
+            + '; see residual_map and residual_maps.png for where it lives')
     if res.driver:
         report['driver'] = {**res.driver, 'note': (
             'command -> measured coil current; the extended model current dynamics are '
@@ -184,6 +211,7 @@ def build(res, records, validate=(), elapsed=None):
     kinds = sorted({r.input_kind for r in records})
     extra = {'heldout_nrmse': ext_n, 'baseline_heldout_nrmse': base_n,
              'fitted_range': res.fitted_range,
+             'domain': None if res.domain is None else res.domain.to_dict(),
              'sensor': {'force_channel_delay': res.delay,
                         'force_channel_cutoff_hz': res.channel_filter}}
     if res.driver:
@@ -194,24 +222,57 @@ def build(res, records, validate=(), elapsed=None):
     model = model_io.model_dict(ext_params, ext_dyn, damper_causes, kinds[0],
                                 [r.name for r in records], extra)
     if validate:
-        vstd = float(np.std(np.concatenate([r.force for r in validate])))
-
-        def vn(fits):
-            err = [r.force - diagnose.predict_force(r, fits, channel=False) for r in validate]
-            return _nrmse(float(np.mean(np.concatenate(err) ** 2)), vstd)
-
-        vb = vn((base,))
-        ve = vn(res.predictors)
-        per = {}
-        for e in damper_causes:
-            s = res.singles.get(e)
-            if s is not None:
-                per[e] = vn((s,))
-        report['validation'] = {
-            'records': [r.name for r in validate], 'baseline_nrmse': vb,
-            'extended_nrmse': ve, 'gain': 1.0 - ve / vb, 'single_effect_nrmse': per,
-            'note': 'physical models without the force-channel delay of the fitted records'}
+        report['validation'] = validation(res, validate, damper_causes)
     return report, model
+
+
+def validation(res, validate, damper_causes=()):
+    """Figures on records never used in the fit, inside the fitted domain only.
+
+    Every validation record is checked against the fitted domain (``diagnose.domain_lines``);
+    its flagged stretches are left out of the figures and listed one line per kind.
+    """
+    keep, lines, excluded = [], [], 0
+    for r in validate:
+        chk, found = diagnose.domain_lines(res, r)
+        m = np.asarray(r.mask, dtype=bool)
+        if chk is not None and chk.mask.any():
+            excluded += int(np.count_nonzero(m & ~chk.mask))
+            m = m & chk.mask
+        keep.append(m)
+        lines += found
+    used = sum(int(np.count_nonzero(m)) for m in keep)
+    vstd = float(np.std(np.concatenate([r.force[m] for r, m in zip(validate, keep)])))
+
+    def vn(fits):
+        err = [(r.force - diagnose.predict_force(r, fits, channel=False))[m]
+               for r, m in zip(validate, keep)]
+        return _nrmse(float(np.mean(np.concatenate(err) ** 2)), vstd)
+
+    vb = vn((res.baseline,))
+    ve = vn(res.predictors)
+    vr = None
+    if res.reference_model is not None:
+        err = [(r.force - res.reference_model.predict(r))[m] for r, m in zip(validate, keep)]
+        vr = _nrmse(float(np.mean(np.concatenate(err) ** 2)), vstd)
+    per = {e: vn((res.singles[e],)) for e in damper_causes if res.singles.get(e) is not None}
+    # Each cause switched off in the extended model (no refit): a cause whose removal
+    # predicts these records better does not transfer to them.
+    without = {}
+    for e in damper_causes:
+        if e in res.final.effects and e not in engine.SENSOR_EFFECTS:
+            off = copy.copy(res.final)
+            off.effects = tuple(x for x in res.final.effects if x != e)
+            without[e] = vn((off,))
+    worse = [e for e, n in without.items() if n < (1.0 - TRANSFER_LOSS) * ve]
+    out = {'records': [r.name for r in validate], 'baseline_nrmse': vb, 'extended_nrmse': ve,
+           'gain': 1.0 - ve / vb, 'single_effect_nrmse': per, 'domain': lines,
+           'reference_nrmse': vr, 'without_effect_nrmse': without,
+           'not_transferring': worse,
+           'excluded_share': excluded / max(used + excluded, 1),
+           'note': 'physical models without the force-channel delay of the fitted records; '
+                   'samples outside the fitted domain left out'}
+    return out
 
 
 def _predictions(res, records, delay=True):
@@ -364,6 +425,30 @@ def _residual_maps(rmap, out_dir, plt):
     return 'residual_maps.png'
 
 
+def heldout_lines(ho):
+    """Lines on the two held-out figures (outer blocks, kept-back data) and any drift."""
+    out = []
+    for key, what in (('outer_blocks', 'Outer blocks (interleaved with the fitted data)'),
+                      ('forward', 'Kept back after the fitted data')):
+        f = ho.get(key)
+        if f:
+            how = f' ({f["kept_back"]}, {f["seconds"]:.1f} s)' if 'kept_back' in f else ''
+            out.append(f'- {what}{how}: baseline {f["baseline_nrmse"]:.4f}, extended '
+                       f'{f["extended_nrmse"]:.4f} +- {f["extended_se"]:.4f}')
+    d = ho.get('drift')
+    if ho.get('forward_over_blocks'):
+        line = (f'- **The model drifts over the run**: on the kept-back data its error is '
+                f'{ho["forward_over_blocks"]:.2f}x the outer blocks\'')
+        if d:
+            line += (f'; the force scale against the prediction moves by '
+                     f'{100 * d["scale_change"]:.1f} % over the run')
+            if d.get('channel'):
+                r = d[f'by_{d["channel"]}_r']
+                line += f', following the {d["channel"]} (r = {r:+.2f})'
+        out.append(line)
+    return out + ([''] if out else [])
+
+
 def markdown(report, figures):
     """Human-readable report."""
     ho = report['heldout']
@@ -379,7 +464,13 @@ def markdown(report, figures):
              f'**Verdict: {report["verdict"]}.** Held-out NRMSE ({ho["source"]}) baseline '
              f'{report["baseline"]["heldout_nrmse"]:.4f}, extended '
              f'{report["extended"]["heldout_nrmse"]:.4f}, gain {report["gain"]:.1%}.' + floor,
-             '', f'Baseline: `{report["baseline"]["model"]}`', '']
+             '']
+    lines += heldout_lines(ho)
+    ref = report.get('reference')
+    if ref:
+        lines += [f'Learned reference (evidence, not the delivered model: {ref["model"]}): '
+                  f'held-out NRMSE {ref["heldout_nrmse"]:.4f}; {ref["verdict_note"]}.', '']
+    lines += [f'Baseline: `{report["baseline"]["model"]}`', '']
     if report.get('unexplained'):
         lines += ['**Not yet explained:** ' + report['unexplained'] + '.', '']
     if report['sensor_findings']:
@@ -449,7 +540,15 @@ def markdown(report, figures):
         lines += ['', '## Validation records', '',
                   f'Baseline NRMSE {v["baseline_nrmse"]:.4f}, extended {v["extended_nrmse"]:.4f}'
                   f', gain {v["gain"]:.1%} on {len(v["records"])} record(s) never used in the '
-                  'fit.']
+                  f'fit ({100 * v["excluded_share"]:.1f} % of their samples outside the fitted '
+                  'domain left out).' + (
+                      f' Learned reference {v["reference_nrmse"]:.4f}.'
+                      if v.get('reference_nrmse') is not None else '')]
+        lines += [f'- {line}' for line in v['domain']]
+        for e in v.get('not_transferring', ()):
+            lines.append(f'- `{e}` does not transfer to these records: the extended model '
+                         f'without it predicts them at {v["without_effect_nrmse"][e]:.4f} '
+                         f'(with it {v["extended_nrmse"]:.4f})')
     if report.get('input_warnings'):
         lines += ['', '## Input warnings', '']
         lines += [f'- {w}' for w in report['input_warnings']]

@@ -93,7 +93,18 @@ SEPARATING = {
     'whole travel (ramp unloading, or a rig run)',
     frozenset(('current_delay', 'current_lag')): 'current steps up and down while driving '
     'steadily on a rough road',
+    frozenset(('strut_friction', 'fy0')): 'the damper alone on a rig at 0 A (its current-free '
+    'yield force), or the strut without the damper: what the car adds to the rig figure is '
+    'the strut friction',
+    frozenset(('strut_friction', 'c0')): 'the damper alone on a rig at 0 A (its viscous '
+    'coefficient)',
+    frozenset(('spring_nonlinearity', 'k_s')): 'a slow quasi-static stroke over the whole '
+    'travel (ramp unloading, or a rig run)',
 }
+# A baseline term the fit refits that may hold an effect: (effect, its linear coefficient).
+BASELINE_TERMS = ('c0', 'fy0', 'k_s')
+ALIAS_SHIFT = 0.25  # a refitted baseline term this far from its nominal value has absorbed
+# something (beyond a damper's production spread of about 10-15 %)
 UNTESTABLE_HOW = {
     'current_delay': 'drive a rough road with the controller switching the current in steps '
                      '(>= 4 steps each way), e.g. on-off skyhook',
@@ -1187,6 +1198,42 @@ def select(P, effects, untestable, progress=None):
     return base, parent, steps, ambiguous
 
 
+def baseline_aliases(P, final, effects, rows):
+    """Pairs ``(effect, baseline term)`` that draw one signal, the term moved off nominal.
+
+    A catalogue effect that is not named may still be in the data, held by a baseline term
+    the fit refits: strut friction ``f_fric tanh(v / v_fric)`` is the current-free yield
+    force ``fy0 tanh(v / v_y)`` when ``v_fric`` is near ``v_y``. For every effect not named
+    (and testable), its best child of ``final`` gives its regressor; where that regressor
+    correlates with a baseline term's by ``diagnose.CORR_AMBIG`` or more on the inner rows
+    and that term's refitted value lies more than ``ALIAS_SHIFT`` from its nominal, the
+    data cannot say which of the two moved: the pair is ambiguous.
+    """
+    th = dict(zip(final.names, final.theta))
+    m_s = P.nominal.vehicle.m_s
+    c0, _, fy0, _, _ = P.nominal.damper_coeffs()
+    nominal = {'c0': c0, 'fy0': fy0, 'k_s': P.nominal.vehicle.k_s}
+    moved = [t for t in BASELINE_TERMS if t in th and nominal[t]
+             and abs(th[t] * m_s / nominal[t] - 1.0) > ALIAS_SHIFT]
+    out = []
+    if not moved:
+        return out
+    for e in effects:
+        if e in final.effects or e not in PHYSICS:
+            continue
+        kid = search(P, final, e, rows)
+        x, names = columns(P, kid.effects, kid.eta)
+        own = [k for k, n in enumerate(names) if n not in final.names]
+        if len(own) != 1:
+            continue
+        col = x[rows, own[0]]
+        for t in moved:
+            r = diagnose.corr(col, x[rows, names.index(t)])
+            if abs(r) >= diagnose.CORR_AMBIG:
+                out.append((e, t))
+    return out
+
+
 def _drop_losses(P, final, rows):
     out = {}
     for e in final.effects:
@@ -1332,7 +1379,9 @@ def run(records, nominal=None, effects=ALL_EFFECTS, progress=None):
                                             ('extended', final_o, m_fit)], road)
     else:
         heldout_corner = None
-    verdict = 'none' if not causes else ('ambiguous' if ambiguous else 'named')
+    untested = [e for e in effects if e not in untestable]
+    ambiguous = list(ambiguous) + baseline_aliases(P, final, untested, P.search_rows)
+    verdict = 'ambiguous' if ambiguous else ('none' if not causes else 'named')
     floor = noise['nrmse']
     heldout = {'source': 'outer blocks (untouched by fit and selection)',
                'baseline_nrmse': base_n, 'extended_nrmse': fin_n,
