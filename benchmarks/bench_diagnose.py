@@ -19,13 +19,24 @@ noise, which is what a perfect model fitted on the training record reaches (a dr
 channel shifts the mean from record to record); the figure over the unseen record's own floor
 is printed too.
 
+The learned reference (``diagnose.ReferenceComparison``): per family, how often it beats the
+extended model on held-out data, how often it does so while the extended model is within
+1.15x its floor on the unseen record (a flip the requirement forbids), and how many records
+with the exact cause set right it turns ``partly_explained`` on its own.
+
+With ``--outside N`` a third family, **outside**, draws one of the truth's effects the
+catalogue lacks (``truth.rig.OUTSIDE``: fluid inertia, Stribeck seal friction; alternating),
+every other pair of cases with one catalogue effect beside it: how often the verdict is
+``partly_explained`` (by the reference alone, by the noise floor).
+
 With ``--clean-inputs`` every out-of-model case is diagnosed a second time, measured with
 noise-free displacement, velocity and current sensors (same truth, faults and force noise):
 the gap between the two unseen / floor figures is what input noise costs, the rest is the
 model; the cause figures of that pass are printed beside (a cause named or missed only with
 noisy inputs is the inputs' doing).
 
-Usage: ``python benchmarks/bench_diagnose.py [--cases 300] [--duration 12] [--jobs 2]``.
+Usage: ``python benchmarks/bench_diagnose.py [--cases 300] [--duration 12] [--jobs 2]
+[--outside 0]``.
 """
 
 import argparse
@@ -58,6 +69,21 @@ def case_list(n, seed, effects):
             effs = (effects[(k // 6 * 3 + r - 1) % len(effects)],)
         else:
             effs = pairs[rng.integers(len(pairs))]
+        out.append(effs)
+    return out
+
+
+def outside_list(n, seed):
+    """Cases of the ``outside`` family: one ``OUTSIDE`` effect each, alternating.
+
+    Every other pair of cases has one catalogue effect (drawn) beside it.
+    """
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(n):
+        effs = (truth_rig.OUTSIDE[k % len(truth_rig.OUTSIDE)],)
+        if (k // 2) % 2 == 1:
+            effs = (truth_rig.EFFECTS[rng.integers(len(truth_rig.EFFECTS))],) + effs
         out.append(effs)
     return out
 
@@ -100,6 +126,22 @@ def _clean_inputs(seed, effs, duration):
     return (_over(score, truth_cases.transfer_floor(case, u_case)),) + _causes(res)
 
 
+def _reference(res):
+    """``(beats, gain, by_reference, by_floor)`` of a diagnosis's learned reference.
+
+    ``beats``/``gain`` None without a reference; ``by_reference``: the verdict is
+    ``partly_explained`` although the extended model is within ``PARTLY_FACTOR`` of the
+    estimated floor (or no floor), so the reference alone made it; ``by_floor``: the floor did.
+    """
+    ref = getattr(res, 'reference', None)
+    beats = None if ref is None else bool(ref.beats)
+    gain = None if ref is None else float(ref.gain)
+    eof = res.heldout.get('extended_over_floor')
+    over = eof is not None and np.isfinite(eof) and eof > diagnose.PARTLY_FACTOR
+    partly = res.verdict == 'partly_explained'
+    return beats, gain, partly and not over, partly and over
+
+
 def _causes(res):
     """``(physical causes, sensor causes)`` of a diagnosis."""
     return res.physical_causes, tuple(c for c in res.causes if c not in res.physical_causes)
@@ -107,7 +149,7 @@ def _causes(res):
 
 def run_case(job):
     """Diagnose one case; return a dict of outcomes (runs in a worker process)."""
-    family, k, effs, seed, duration, clean_inputs = job
+    family, k, effs, seed, duration, clean_inputs = job  # 'outside' is drawn as out-of-model
     diagnose.JOBS = 1  # the cases run in parallel processes already
     t0 = time.time()
     if family == 'in-model':
@@ -149,6 +191,7 @@ def run_case(job):
         return {'family': family, 'k': k, 'effects': effs, 'error': str(exc)}
     est = res.floor.nrmse if res.floor is not None else float('nan')
     physical, sensor = _causes(res)
+    ref_beats, ref_gain, by_ref, by_floor = _reference(res)
     return {'family': family, 'k': k, 'effects': effs, 'faults': faults, 'shape': shape,
             'driver': driver,
             'causes': physical, 'sensor': sensor,
@@ -157,7 +200,8 @@ def run_case(job):
             'unseen_baseline_ratio': _over(b_score, u_floor), 'unseen_outside': outside,
             'unseen_ratio_own_floor': _over(score, own_floor),
             'unseen_ratio_clean_inputs': ci_ratio, 'causes_clean_inputs': ci_causes,
-            'sensor_clean_inputs': ci_sensor, 'seed': seed,
+            'sensor_clean_inputs': ci_sensor, 'seed': seed, 'ref_beats': ref_beats,
+            'ref_gain': ref_gain, 'partly_by_reference': by_ref, 'partly_by_floor': by_floor,
             'heldout': res.heldout['extended_nrmse'], 'seconds': time.time() - t0}
 
 
@@ -285,7 +329,79 @@ def summarise(family, results, strict=False):
     for r in res:
         verdicts[r['verdict']] = verdicts.get(r['verdict'], 0) + 1
     print('verdicts: ' + ', '.join(f'{k} {v}' for k, v in sorted(verdicts.items())))
+    _reference_lines(res)
     print(f'seconds per case: median {np.median([r["seconds"] for r in res]):.1f}')
+
+
+FLIP_RATIO = 1.15  # extended model within this many floors: the reference must not flip it
+
+
+def _reference_lines(res):
+    """Print the learned reference's figures of scored results."""
+    have = [r for r in res if r.get('ref_beats') is not None]
+    beats = [r for r in have if r['ref_beats']]
+    near = [r for r in beats if r.get('unseen_ratio', np.nan) <= FLIP_RATIO]
+    exact = [r for r in res if set(r['causes']) == set(r['effects'])]
+    flipped = [r for r in exact if r.get('partly_by_reference')]
+    forbidden = [r for r in flipped if r.get('unseen_ratio', np.nan) <= FLIP_RATIO]
+    gains = [r['ref_gain'] for r in have]
+    print(f'learned reference beats the extended model: {len(beats)}/{len(have)} (no reference: '
+          f'{len(res) - len(have)}; gain median '
+          f'{np.median(gains) if gains else np.nan:.3f})')
+    print(f'  of those, extended model within {FLIP_RATIO:g}x its floor on the unseen record: '
+          f'{len(near)} (flips the requirement forbids)')
+    print(f'  verdict partly_explained by the reference alone: '
+          f'{sum(bool(r.get("partly_by_reference")) for r in res)}/{len(res)}, by the floor: '
+          f'{sum(bool(r.get("partly_by_floor")) for r in res)}/{len(res)}')
+    print(f'exact cause set right: {len(exact)} ({sum(bool(r["effects"]) for r in exact)} '
+          f'with effects); turned partly_explained by the reference: {len(flipped)} (of them '
+          f'effect-free {sum(not r["effects"] for r in flipped)}, within {FLIP_RATIO:g}x the '
+          f'floor {len(forbidden)})')
+
+
+def summarise_outside(results):
+    """Print the figures of the ``outside`` family (is an effect the catalogue lacks caught)."""
+    res = [r for r in results if r['family'] == 'outside']
+    err = [r for r in res if 'error' in r]
+    raw = {r['k']: r['causes'] for r in res if 'error' not in r}
+    res = _scored([r for r in res if 'error' not in r], False)
+    print(f'\n== outside (effects the catalogue lacks: {", ".join(truth_rig.OUTSIDE)}): '
+          f'{len(res)} cases diagnosed, {len(err)} refused by the input checks')
+    for r in err[:5]:
+        print(f'   refused: {"+".join(r["effects"])}: {r["error"][:110]}')
+
+    def line(label, sub):
+        n = len(sub)
+        pe = sum(r['verdict'] == 'partly_explained' for r in sub)
+        print(f'  {label:44s} partly_explained {pe:3d}/{n:3d} = {100 * pe / max(n, 1):5.1f} % '
+              f'(by the reference alone {sum(bool(r["partly_by_reference"]) for r in sub)}, '
+              f'by the floor {sum(bool(r["partly_by_floor"]) for r in sub)})')
+
+    def strong(r):
+        return all(r['contrib'].get(e, 0.0) >= 3.0 for e in r['effects']
+                   if e in truth_rig.OUTSIDE)
+
+    line('all', res)
+    line('outside effect >= 3x noise', [r for r in res if strong(r)])
+    line('outside effect < 3x noise', [r for r in res if not strong(r)])
+    for e in truth_rig.OUTSIDE:
+        line(f'{e} alone', [r for r in res if r['effects'] == (e,)])
+        line(f'{e} with a catalogue effect',
+             [r for r in res if e in r['effects'] and len(r['effects']) == 2])
+    with_cat = [r for r in res if len(r['effects']) == 2]
+    named = sum(bool(set(r['effects']) & set(r['causes'])) for r in with_cat)
+    print(f'  catalogue effect beside it named: {named}/{len(with_cat)}')
+    _ratio_line('extended model on an unseen record / its noise floor',
+                [r.get('unseen_ratio', np.nan) for r in res])
+    verdicts = {}
+    for r in res:
+        verdicts[r['verdict']] = verdicts.get(r['verdict'], 0) + 1
+    print('verdicts: ' + ', '.join(f'{k} {v}' for k, v in sorted(verdicts.items())))
+    for r in res:
+        c = ', '.join(f'{e} {r["contrib"].get(e, np.nan):.1f}x' for e in r['effects'])
+        print(f'  {r["k"]:3d} {c:52s} found={"+".join(raw[r["k"]]) or "none":30s} '
+              f'{r["verdict"]:16s} ref beats={r["ref_beats"]} unseen/floor '
+              f'{r["unseen_ratio"]:.2f}')
 
 
 def timing():
@@ -332,12 +448,17 @@ def main(argv=None):
                     help='also diagnose every out-of-model case measured with noise-free '
                          'displacement, velocity and current (doubles the time): how much of '
                          'the unseen / floor figure is input noise, how much the model')
+    ap.add_argument('--outside', type=int, default=0,
+                    help='cases of the outside family: an effect the catalogue lacks '
+                         '(truth.rig.OUTSIDE), every other pair with a catalogue effect')
     args = ap.parse_args(argv)
     ci = args.clean_inputs
     jobs = [('out-of-model', k, e, args.seed * 100003 + k, args.duration, ci)
             for k, e in enumerate(case_list(args.cases, args.seed, truth_rig.EFFECTS))]
     jobs += [('in-model', k, e, args.seed * 100003 + 50000 + k, args.duration, False)
              for k, e in enumerate(case_list(args.in_model, args.seed + 1, engine.EFFECTS))]
+    jobs += [('outside', k, e, args.seed * 100003 + 70000 + k, args.duration, False)
+             for k, e in enumerate(outside_list(args.outside, args.seed + 2))]
     t0 = time.time()
     results = []
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
@@ -356,6 +477,8 @@ def main(argv=None):
     for family in ('out-of-model', 'in-model'):
         summarise(family, results)
     summarise('out-of-model', results, strict=True)
+    if args.outside:
+        summarise_outside(results)
     if not args.no_timing:
         timing()
 

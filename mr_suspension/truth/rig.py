@@ -19,7 +19,7 @@ current-dependent coefficient: ``c = c0 + c1 i_e``, ``fy = fy0 + fy1 i_e``.
 
 Force::
 
-    F   = f0 + F_gas(x) + F_d
+    F   = f0 + F_gas(x) + F_d  [+ F_in + F_seal: the effects outside the catalogue, below]
     F_d = m_c(T) c u (1 + rho tanh(u / v_s)) + m_y(T) fy y (1 + rho y)
     y   = S(u / v_y) (static yield), S = tanh | w / sqrt(1 + w^2) | (2/pi) atan(w)
     y   = z / z_max, dz/dt = A u - beta |u| |z|^(n-1) z - gamma u |z|^n    (Bouc-Wen;
@@ -27,6 +27,23 @@ Force::
     dF_d/dt = k1 (v - u)                      (series spring; u solves F_d(u) = state)
     F_gas = -p0 A_r ((V0 / (V0 + A_r x))^n_g - 1)       (polytropic accumulator)
     C dT/dt = F_d u - T / R,  m_c = exp(-beta_c T),  m_y = max(1 - beta_y T, 0.1)
+
+Two effects the diagnosis catalogue lacks (``OUTSIDE``; never drawn by the benchmark's
+``EFFECTS`` cases, so those draws are unchanged), both on the rod motion, in parallel::
+
+    F_in   = m_f a                          (fluid inertia, ``fluid_inertia``)
+    F_seal = (F_c + (F_s - F_c) exp(-(v / v_s)^2)) sign(v)   (``seal_friction``, Stribeck)
+
+``a`` is the piston acceleration (second derivative of the motion spline). ``m_f`` is the
+fluid inertance seen at the piston: the MR fluid (density ~3000 kg/m^3) in the valve gap of
+length ``L`` and area ``A_g`` moves ``A_p / A_g`` times faster than the piston, so its kinetic
+energy is that of ``m_f = rho L A_p^2 / A_g`` at the piston. Over the gap's viscous
+coefficient ``12 mu L A_p^2 / (w h^3)`` that is the inertance time ``rho h^2 / (12 mu)``, so
+``m_f`` grows with the damper's size (``draw_truth``: 2-30 ms times the mid-current viscous
+coefficient, about 1-100 kg). The seal friction is the rod seal and piston band: a static
+(breakaway) level ``F_s`` that drops within ``v_s`` of rest to the Coulomb level ``F_c`` (a
+Stribeck dip, not a monotone sigmoid: the force-velocity map overshoots near rest),
+discontinuous at ``v = 0``; it acts on the rod velocity ``v``, outside any series spring.
 
 ``u`` is the damping-element velocity (``u = v`` without a series spring). Shapes:
 ``bingham_tanh``, ``algebraic``, ``arctan`` use the static ``y``; ``bouc_wen`` always uses the
@@ -53,14 +70,24 @@ from scipy.interpolate import CubicSpline
 
 from mr_suspension.truth.programme import programme
 
-__all__ = ['EFFECTS', 'SHAPES', 'RigTruth', 'draw_truth', 'simulate', 'contributions',
+__all__ = ['EFFECTS', 'OUTSIDE', 'SHAPES', 'RigTruth', 'draw_truth', 'simulate', 'contributions',
            'programme']
 
 EFFECTS = ('current_delay', 'current_lag', 'current_lag_asymmetric', 'current_saturation',
            'hysteresis', 'series_stiffness', 'gas_spring', 'thermal_fade', 'direction_asymmetry')
+# Effects outside the diagnosis catalogue (drawn only when asked for by name).
+OUTSIDE = ('fluid_inertia', 'seal_friction')
+KNOWN = EFFECTS + OUTSIDE
 SHAPES = ('bingham_tanh', 'algebraic', 'arctan', 'bouc_wen')
 SITES = ('field', 'driver')
 RHO_MAX = 0.5
+# Strength ranges (weak -> strong) of the effects outside the catalogue, relative to the
+# damper's size (``draw_truth``): inertance time m_f / c_mid [s], seal Coulomb friction over
+# the mid-current force at 0.1 m/s, breakaway over Coulomb.
+FLUID_RANGE = (2e-3, 30e-3)
+SEAL_FC_RANGE = (0.03, 0.3)
+SEAL_RATIO_RANGE = (1.3, 3.0)
+V_REF = 0.1
 MAX_SPLIT = 400
 
 # Parameter array of the force kernel.
@@ -79,6 +106,8 @@ class RigTruth:
     (0, 1]; ``k_series`` [N/m]; ``gas_p0`` [Pa] with ``gas_area`` [m^2], ``gas_volume``
     [m^3], ``gas_n``; ``thermal_beta_c``, ``thermal_beta_y`` [1/K] with ``heat_capacity``
     [J/K] and ``thermal_resistance`` [K/W]; ``rho`` [-] with ``v_switch`` [m/s].
+    Outside the catalogue: ``fluid_mass`` [kg]; ``seal_fc`` [N] with ``seal_fs`` [N]
+    (``>= seal_fc``) and ``seal_vs`` [m/s].
     Driver: ``driver_tau`` [s], ``current_site`` ('field' or 'driver'), ``i_max`` [A]
     (largest command drawn). ``strengths``: drawn strength quantile per effect (0 weak).
     """
@@ -111,6 +140,10 @@ class RigTruth:
     thermal_resistance: float = 0.3
     rho: float = 0.0
     v_switch: float = 0.02
+    fluid_mass: float = 0.0
+    seal_fc: float = 0.0
+    seal_fs: float = 0.0
+    seal_vs: float = 0.005
     driver_tau: float = 0.0
     current_site: str = 'field'
     i_max: float = 1.0
@@ -126,11 +159,12 @@ class RigTruth:
             if isinstance(val, float) and not math.isfinite(val):
                 raise ValueError(f'RigTruth: {f.name} must be finite, got {val}')
         for name in ('c0', 'v_y', 'bw_a', 'gas_area', 'gas_volume', 'heat_capacity',
-                     'thermal_resistance', 'v_switch', 'i_max'):
+                     'thermal_resistance', 'v_switch', 'i_max', 'seal_vs'):
             if not getattr(self, name) > 0:
                 raise ValueError(f'RigTruth: {name} must be > 0, got {getattr(self, name)}')
         for name in ('c1', 'fy0', 'fy1', 'dead_time', 'tau_rise', 'tau_fall', 'i_sat', 'x_h',
-                     'k_series', 'gas_p0', 'thermal_beta_c', 'thermal_beta_y', 'driver_tau'):
+                     'k_series', 'gas_p0', 'thermal_beta_c', 'thermal_beta_y', 'driver_tau',
+                     'fluid_mass', 'seal_fc', 'seal_fs'):
             if getattr(self, name) < 0:
                 raise ValueError(f'RigTruth: {name} must be >= 0, got {getattr(self, name)}')
         if (self.tau_rise > 0) != (self.tau_fall > 0):
@@ -145,6 +179,8 @@ class RigTruth:
             raise ValueError(f'RigTruth: |rho| must be <= {RHO_MAX}, got {self.rho}')
         if not 1.0 <= self.gas_n <= 1.67:
             raise ValueError(f'RigTruth: gas_n must be in [1, 1.67], got {self.gas_n}')
+        if self.seal_fs < self.seal_fc:
+            raise ValueError('RigTruth: seal_fs (breakaway) must be >= seal_fc (Coulomb)')
         if self.dead_time > 1.0:
             raise ValueError('RigTruth: dead_time must be <= 1 s')
 
@@ -157,8 +193,9 @@ class RigTruth:
               'current_saturation': self.i_sat > 0, 'hysteresis': self.x_h > 0,
               'series_stiffness': self.k_series > 0, 'gas_spring': self.gas_p0 > 0,
               'thermal_fade': self.thermal_beta_c > 0 or self.thermal_beta_y > 0,
-              'direction_asymmetry': self.rho != 0}
-        return tuple(e for e in EFFECTS if on[e])
+              'direction_asymmetry': self.rho != 0, 'fluid_inertia': self.fluid_mass > 0,
+              'seal_friction': self.seal_fs > 0}
+        return tuple(e for e in KNOWN if on[e])
 
     def without(self, effect):
         """Return this truth with one effect switched off (its neutral parameters)."""
@@ -168,9 +205,10 @@ class RigTruth:
                'current_saturation': {'i_sat': 0.0}, 'hysteresis': {'x_h': 0.0},
                'series_stiffness': {'k_series': 0.0}, 'gas_spring': {'gas_p0': 0.0},
                'thermal_fade': {'thermal_beta_c': 0.0, 'thermal_beta_y': 0.0},
-               'direction_asymmetry': {'rho': 0.0}}
+               'direction_asymmetry': {'rho': 0.0}, 'fluid_inertia': {'fluid_mass': 0.0},
+               'seal_friction': {'seal_fc': 0.0, 'seal_fs': 0.0}}
         if effect not in off:
-            raise ValueError(f'RigTruth: unknown effect {effect!r}; known: {EFFECTS}')
+            raise ValueError(f'RigTruth: unknown effect {effect!r}; known: {KNOWN}')
         return replace(self, **off[effect])
 
     @property
@@ -558,6 +596,21 @@ def gas_force(truth, x):
     return -truth.gas_p0 * truth.gas_area * ((truth.gas_volume / vol) ** truth.gas_n - 1.0)
 
 
+def inertia_force(truth, a):
+    """Fluid inertia ``m_f a`` [N] at piston acceleration ``a`` [m/s^2] (0 when off)."""
+    a = np.asarray(a, dtype=float)
+    return truth.fluid_mass * a if truth.fluid_mass > 0 else np.zeros_like(a)
+
+
+def seal_force(truth, v):
+    """Stribeck seal friction ``(F_c + (F_s - F_c) exp(-(v/v_s)^2)) sign(v)`` [N] (0 when off)."""
+    v = np.asarray(v, dtype=float)
+    if truth.seal_fs <= 0:
+        return np.zeros_like(v)
+    level = truth.seal_fc + (truth.seal_fs - truth.seal_fc) * np.exp(-(v / truth.seal_vs) ** 2)
+    return level * np.sign(v)
+
+
 def _check_inputs(t, x, i_cmd, substeps):
     t = np.asarray(t, dtype=float).ravel()
     x = np.asarray(x, dtype=float).ravel()
@@ -583,7 +636,8 @@ def simulate(truth, t, x, i_cmd, substeps=10):
     samples). Keys: ``force`` (clean, N), ``velocity`` (spline derivative), ``displacement``,
     ``current_command``, ``coil_current``, ``field_current`` (after the current effects),
     ``effective_current`` (after saturation), ``element_velocity``, ``yield_state`` (``y``),
-    ``bw_z`` (raw Bouc-Wen state), ``temperature`` (rise, K), ``gas_force``, ``rk4_steps``.
+    ``bw_z`` (raw Bouc-Wen state), ``temperature`` (rise, K), ``gas_force``, ``acceleration``
+    (spline), ``inertia_force``, ``seal_force``, ``rk4_steps``.
     """
     t, x, i_cmd, dt, substeps = _check_inputs(t, x, i_cmd, substeps)
     tr = truth
@@ -607,11 +661,20 @@ def simulate(truth, t, x, i_cmd, substeps=10):
                          f'would need more than {MAX_SPLIT} splits); raise substeps or soften '
                          'k_series / the Bouc-Wen pre-yield length')
     fg = gas_force(tr, x)
+    acc = cs(t - t[0], 2)
+    fin = inertia_force(tr, acc)
+    fs = seal_force(tr, v)
+    force = tr.f0 + fg + fd
+    if tr.fluid_mass > 0:  # added only when on: the catalogue's records stay bit-identical
+        force = force + fin
+    if tr.seal_fs > 0:
+        force = force + fs
     return {'time': t, 'displacement': x, 'velocity': v, 'current_command': i_cmd,
-            'force': tr.f0 + fg + fd, 'coil_current': coil_f[::nf].copy(),
+            'force': force, 'coil_current': coil_f[::nf].copy(),
             'field_current': field_f[::nf].copy(), 'effective_current': ie_f[::nf].copy(),
             'element_velocity': u, 'yield_state': y, 'bw_z': z, 'temperature': temp,
-            'gas_force': fg, 'rk4_steps': int(steps)}
+            'gas_force': fg, 'acceleration': acc, 'inertia_force': fin, 'seal_force': fs,
+            'rk4_steps': int(steps)}
 
 
 def contributions(truth, t, x, i_cmd, substeps=10, base=None):
@@ -674,12 +737,19 @@ def draw_truth(rng, effects=(), shape=None, strength=None, i_max=1.0, driver_tau
     (``bouc_wen``: 1.5 -> 10 times its pre-yield length 0.1-1 mm); series ``k1``
     5e7 -> 5e4 N/m; gas column ``V0/A`` 0.6 -> 0.05 m at 0.5-4 MPa, rod 8-25 mm;
     thermal ``beta_c`` 0.003 -> 0.08 /K, ``C`` 3000 -> 100 J/K, ``R`` 0.05-1 K/W;
-    ``|rho|`` 0.03 -> 0.5. ``driver_tau`` None draws 0.05-0.5 ms.
+    ``|rho|`` 0.03 -> 0.5. ``driver_tau`` None draws 0.05-0.5 ms. Outside the catalogue
+    (``OUTSIDE``), scaled by the damper's size (both grow with the piston area, as the
+    force does): fluid mass ``m_f = tau_f c_mid`` with ``c_mid = c0 + c1 i_max / 2`` and the
+    inertance time ``tau_f`` 2 -> 30 ms (``rho h^2 / (12 mu)`` of a Poiseuille gap ``h``:
+    a few ms at 1 mm, tens at 2 mm with a thin fluid); seal friction ``F_c`` 0.03 -> 0.3
+    ``F_ref`` (``F_ref = c_mid 0.1 m/s + fy0 + fy1 i_max / 2``, the mid-current force at
+    0.1 m/s), breakaway ``F_s / F_c`` 1.3 -> 3, ``v_s`` 1-10 mm/s. A truth without them draws
+    exactly as before they existed.
     """
     effects = tuple(effects)
     for e in effects:
-        if e not in EFFECTS:
-            raise ValueError(f'draw_truth: unknown effect {e!r}; known: {EFFECTS}')
+        if e not in KNOWN:
+            raise ValueError(f'draw_truth: unknown effect {e!r}; known: {KNOWN}')
     if 'current_lag' in effects and 'current_lag_asymmetric' in effects:
         raise ValueError('draw_truth: current_lag and current_lag_asymmetric exclude each other')
     if shape is None:
@@ -740,6 +810,14 @@ def draw_truth(rng, effects=(), shape=None, strength=None, i_max=1.0, driver_tau
             d['thermal_resistance'] = _loguniform(rng, 0.05, 1.0)
         elif e == 'direction_asymmetry':
             d['rho'] = _logq(q, 0.03, 0.5) * rng.choice([-1.0, 1.0])
+        elif e == 'fluid_inertia':
+            d['fluid_mass'] = _logq(q, *FLUID_RANGE) * (d['c0'] + 0.5 * d['c1'] * i_max)
+        elif e == 'seal_friction':
+            f_ref = (V_REF * (d['c0'] + 0.5 * d['c1'] * i_max) + d['fy0']
+                     + 0.5 * d['fy1'] * i_max)
+            d['seal_fc'] = _logq(q, *SEAL_FC_RANGE) * f_ref
+            d['seal_fs'] = d['seal_fc'] * _logq(np.clip(q + jit(), 0, 1), *SEAL_RATIO_RANGE)
+            d['seal_vs'] = _loguniform(rng, 1e-3, 1e-2)
     d['strengths'] = tuple(sorted(qs.items()))
     return RigTruth(**{k: (float(v) if isinstance(v, (float, np.floating)) else v)
                        for k, v in d.items()})
