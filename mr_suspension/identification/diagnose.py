@@ -1741,10 +1741,13 @@ def _runs(m):
     return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
 
 
-def _prediction(record, fits):
-    """Force of ``fits`` (physical models) or of a learned reference on ``record``."""
+def _prediction(record, fits, rows=None):
+    """Force of ``fits`` (physical models) or of a learned reference on ``record``.
+
+    ``rows``: the samples needed (a reference is evaluated there only; NaN elsewhere).
+    """
     if isinstance(fits, LearnedReference):
-        return fits.predict(record)
+        return fits.predict(record, rows)
     return predict_force(record, fits)
 
 
@@ -1754,7 +1757,7 @@ def outer_errors(ds, fits):
     for r, sl in zip(ds.records, ds.slices):
         m = ds.outer[sl]
         if m.any():
-            e = r.force - _prediction(r, fits)
+            e = r.force - _prediction(r, fits, m)
             for a, b in _runs(m):
                 err.append(e[a:b])
                 force.append(r.force[a:b])
@@ -1774,9 +1777,10 @@ def kept_back_errors(held, fits):
     """
     err, force = [], []
     for r, k in held:
-        m = np.asarray(r.mask, dtype=bool)[k:]
-        err.append((r.force - _prediction(r, fits))[k:][m])
-        force.append(r.force[k:][m])
+        use = np.asarray(r.mask, dtype=bool).copy()
+        use[:k] = False
+        err.append((r.force - _prediction(r, fits, use))[use])
+        force.append(r.force[use])
     e = np.concatenate(err) if err else np.zeros(0)
     return ([b for b in np.array_split(e, forward.N_BLOCKS) if b.size],
             [np.concatenate(force)] if force else [])
@@ -1802,9 +1806,9 @@ class LearnedReference:
     fits: tuple
     trees: reference.Reference
 
-    def predict(self, record):
-        """Force [N]: the physical prediction plus the trees' correction."""
-        return predict_force(record, self.fits) + self.trees.predict(record)
+    def predict(self, record, rows=None):
+        """Force [N]: the physical prediction plus the trees' correction (at ``rows``)."""
+        return predict_force(record, self.fits) + self.trees.predict(record, rows)
 
 
 def learned_reference(ds, fits):

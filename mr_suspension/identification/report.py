@@ -253,7 +253,7 @@ def validation(res, validate, damper_causes=()):
     ve = vn(res.predictors)
     vr = None
     if res.reference_model is not None:
-        err = [(r.force - res.reference_model.predict(r))[m] for r, m in zip(validate, keep)]
+        err = [(r.force - res.reference_model.predict(r, m))[m] for r, m in zip(validate, keep)]
         vr = _nrmse(float(np.mean(np.concatenate(err) ** 2)), vstd)
     per = {e: vn((res.singles[e],)) for e in damper_causes if res.singles.get(e) is not None}
     # Each cause switched off in the extended model (no refit): a cause whose removal
