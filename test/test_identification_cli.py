@@ -70,7 +70,7 @@ def test_diagnose_predict_round_trip(tmp_path, capsys):
     # damper driven twice as far and fast is not, and predict says so.
     assert model['fitted_range']['abs_velocity_p999'] == pytest.approx(
         np.percentile(np.abs(rec.velocity), 99.9), rel=1e-3)
-    assert 'outside the range' not in capsys.readouterr().err
+    assert 'outside the domain' not in capsys.readouterr().err
     fast = tmp_path / 'fast.csv'
     np.savetxt(fast, np.column_stack([rec.time, 2 * rec.displacement, 2 * rec.velocity,
                                       rec.i_in]), delimiter=',',
@@ -78,8 +78,8 @@ def test_diagnose_predict_round_trip(tmp_path, capsys):
     assert cli.main(['predict', '--model', str(out / 'model.json'), str(fast), '--out',
                      str(tmp_path / 'fast_pred.csv')]) == 0
     err = capsys.readouterr().err
-    assert 'outside the range the model was fitted on' in err and 'faster than' in err
-    assert 'stroke beyond' in err and 'input above' not in err
+    assert 'outside the domain the model was fitted on' in err and 'stroke rate' in err
+    assert 'displacement: ' in err and 'input: ' not in err
     # A record without a force column can still be predicted.
     nof = tmp_path / 'noforce.csv'
     np.savetxt(nof, np.column_stack([rec.time, rec.displacement, rec.i_in]), delimiter=',',

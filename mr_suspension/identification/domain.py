@@ -21,7 +21,8 @@ Rules, one a kind (the numbers are the module constants):
   the fitted 99.9 % ``|v|``: rate and fluid dynamics were never excited there.
 * ``half_cycle``: a half-cycle (stroke between two reversals, a reversal being a turn back by
   0.2 % of the fitted stroke range, at least 0.1 mm) shorter than half the 1st percentile of
-  the fitted records' whole half-cycles: a loop's or a series spring's behaviour in small
+  the fitted records' whole half-cycles and than the shortest of them (a record is never
+  flagged against its own domain): a loop's or a series spring's behaviour in small
   reversals was never excited (a loop fitted on sine tests of 4 mm strokes or more holds its
   yield force through the sub-millimetre reversals of a broadband record).
 * ``clipping``: force samples held at a rail (``sensors.clipping``): the true force is unknown.
@@ -469,8 +470,8 @@ def fit_domain(records):
         force_noise=float(np.median(noise)), reversal_speed=REVERSAL_SPEED * vrange,
         reversal=float(np.percentile(_against(v[fast], f[fast]), REVERSAL_PCT)) if moved else None,
         offsets=tuple(offsets), records=len(parts), samples=int(x.size),
-        half_stroke=(HALF_FACTOR * float(np.percentile(halves, HALF_PCT))
-                     if halves.size >= HALF_MIN else None))
+        half_stroke=(min(HALF_FACTOR * float(np.percentile(halves, HALF_PCT)),
+                         float(np.min(halves))) if halves.size >= HALF_MIN else None))
 
 
 def _grow(flags, g):
