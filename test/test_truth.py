@@ -12,24 +12,13 @@ import sys
 
 import numpy as np
 import pytest
+import truthcases
 
 from mr_suspension.truth import cases, rig, sensors
 
 TRUTH_DIR = Path(__file__).resolve().parents[1] / 'mr_suspension' / 'truth'
 FORBIDDEN = ('mr_suspension.identification', 'mr_suspension.core.extended',
              'mr_suspension.core.driver', 'mr_suspension.core.damper')
-
-
-def _sine(freq=2.0, amp=0.01, duration=3.0, rate=1000.0):
-    t = np.arange(int(round(duration * rate))) / rate
-    return t, amp * np.sin(2 * np.pi * freq * t)
-
-
-def _linear(**kw):
-    """Return a purely viscous truth: no yield, no current dependence, no driver lag."""
-    base = {'f0': 0.0, 'c0': 1500.0, 'c1': 0.0, 'fy0': 0.0, 'fy1': 0.0, 'driver_tau': 0.0}
-    base.update(kw)
-    return rig.RigTruth(**base)
 
 
 def _harmonic_fit(t, y, w):
@@ -39,9 +28,9 @@ def _harmonic_fit(t, y, w):
 
 
 def test_linear_viscous_damper_is_c_times_v():
-    t, x = _sine(freq=3.0, amp=0.012)
+    t, x = truthcases.sine(freq=3.0, amp=0.012)
     for shape in ('bingham_tanh', 'algebraic', 'arctan'):
-        out = rig.simulate(_linear(shape=shape), t, x, np.full(t.size, 0.7))
+        out = rig.simulate(truthcases.linear_truth(shape=shape), t, x, np.full(t.size, 0.7))
         v = 0.012 * 2 * np.pi * 3.0 * np.cos(2 * np.pi * 3.0 * t)
         inner = slice(5, -5)  # the not-a-knot spline ends are slightly less exact
         assert np.max(np.abs(out['force'][inner] - 1500.0 * v[inner])) < 1e-6 * 1500 * 0.23
@@ -101,8 +90,8 @@ def test_driver_site_puts_the_current_dynamics_before_the_coil_measurement():
 def test_series_spring_with_linear_damper_phase_and_amplitude(k1):
     c, f, amp = 2000.0, 5.0, 0.004
     w = 2 * np.pi * f
-    t, x = _sine(freq=f, amp=amp, duration=2.0)
-    out = rig.simulate(_linear(c0=c, k_series=k1), t, x, np.zeros(t.size))
+    t, x = truthcases.sine(freq=f, amp=amp, duration=2.0)
+    out = rig.simulate(truthcases.linear_truth(c0=c, k_series=k1), t, x, np.zeros(t.size))
     keep = t >= 1.0  # transients decay with c / k1 <= 25 ms
     a, b = _harmonic_fit(t[keep], out['force'][keep], w)
     r = c * w / k1
@@ -116,7 +105,7 @@ def test_bouc_wen_state_is_bounded_by_its_closed_form():
     zmax = (a / (beta + gamma)) ** (1 / n)
     truth = rig.RigTruth(shape='bouc_wen', bw_a=a, bw_beta=beta, bw_gamma=gamma, bw_n=n)
     assert truth.z_max == pytest.approx(zmax)
-    t, x = _sine(freq=1.5, amp=0.015, duration=2.0)
+    t, x = truthcases.sine(freq=1.5, amp=0.015, duration=2.0)
     z = rig.simulate(truth, t, x, np.full(t.size, 0.5))['bw_z']
     assert np.max(np.abs(z)) <= zmax * (1 + 1e-9)
     assert np.max(np.abs(z)) > 0.99 * zmax
@@ -124,8 +113,8 @@ def test_bouc_wen_state_is_bounded_by_its_closed_form():
 
 def test_direction_asymmetry_ratio_at_high_speed():
     rho = 0.3
-    t, x = _sine(freq=2.0, amp=0.02, duration=1.0)
-    out = rig.simulate(_linear(rho=rho, v_switch=0.005), t, x, np.zeros(t.size))
+    t, x = truthcases.sine(freq=2.0, amp=0.02, duration=1.0)
+    out = rig.simulate(truthcases.linear_truth(rho=rho, v_switch=0.005), t, x, np.zeros(t.size))
     v = out['velocity']
     fast = np.abs(v) > 0.2
     ratio = out['force'][fast] / (1500.0 * v[fast])
@@ -151,8 +140,9 @@ def test_gas_spring_and_saturation_closed_forms():
 
 
 def test_thermal_fade_heats_with_dissipated_power_and_fades_the_force():
-    truth = _linear(thermal_beta_c=0.02, heat_capacity=50.0, thermal_resistance=0.5)
-    t, x = _sine(freq=3.0, amp=0.01, duration=4.0)
+    truth = truthcases.linear_truth(thermal_beta_c=0.02, heat_capacity=50.0,
+                                    thermal_resistance=0.5)
+    t, x = truthcases.sine(freq=3.0, amp=0.01, duration=4.0)
     out = rig.simulate(truth, t, x, np.zeros(t.size))
     temp = out['temperature']
     power = out['force'] * out['velocity']
@@ -184,7 +174,7 @@ def test_halving_the_substep_changes_the_force_far_less_than_the_noise(shape):
 
 
 def _cycle_energy(truth, current, freq=2.0, amp=0.012):
-    t, x = _sine(freq=freq, amp=amp, duration=2.0)
+    t, x = truthcases.sine(freq=freq, amp=amp, duration=2.0)
     out = rig.simulate(truth, t, x, np.full(t.size, current))
     last = t >= 1.5  # one whole cycle (steady state)
     return np.trapezoid(out['force'][last] * out['velocity'][last], t[last])
@@ -240,7 +230,7 @@ def test_programmes_start_and_end_at_rest_within_limits(kind):
 
 
 def test_bad_inputs_raise_clear_errors():
-    t, x = _sine(duration=0.5)
+    t, x = truthcases.sine(duration=0.5)
     i = np.zeros(t.size)
     for bad in ({'shape': 'spencer'}, {'c0': 0.0}, {'tau_rise': 0.01}, {'rho': 0.6},
                 {'bw_gamma': 1e5}, {'k_series': -1.0}, {'v_y': float('nan')}):

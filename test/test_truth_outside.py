@@ -16,18 +16,6 @@ from mr_suspension.truth import cases, rig
 DURATION = 4.0
 
 
-def _sine(freq=3.0, amp=0.01, duration=3.0, rate=1000.0):
-    t = np.arange(int(round(duration * rate))) / rate
-    return t, amp * np.sin(2 * np.pi * freq * t)
-
-
-def _linear(**kw):
-    """Return a purely viscous truth: no yield, no current dependence, no driver lag."""
-    base = {'f0': 0.0, 'c0': 1500.0, 'c1': 0.0, 'fy0': 0.0, 'fy1': 0.0, 'driver_tau': 0.0}
-    base.update(kw)
-    return rig.RigTruth(**base)
-
-
 def test_outside_effects_are_neither_drawn_by_the_benchmark_nor_in_the_catalogue():
     assert rig.OUTSIDE == ('fluid_inertia', 'seal_friction')
     for e in rig.OUTSIDE:
@@ -43,9 +31,9 @@ def test_outside_effects_are_neither_drawn_by_the_benchmark_nor_in_the_catalogue
 
 def test_fluid_inertia_closed_form_on_a_sine():
     """A viscous damper with fluid inertia: ``F = c v + m a``, ``a = -w^2 x`` on a sine."""
-    t, x = _sine()
+    t, x = truthcases.sine(freq=3.0)
     w = 2 * np.pi * 3.0
-    truth = _linear(fluid_mass=12.0)
+    truth = truthcases.linear_truth(fluid_mass=12.0)
     assert truth.effects == ('fluid_inertia',)
     out = rig.simulate(truth, t, x, np.zeros(t.size))
     inner = slice(50, -50)  # away from the spline's not-a-knot ends
@@ -58,8 +46,8 @@ def test_fluid_inertia_closed_form_on_a_sine():
 
 
 def test_seal_friction_closed_form_and_stribeck_dip():
-    t, x = _sine()
-    truth = _linear(seal_fc=40.0, seal_fs=100.0, seal_vs=0.004)
+    t, x = truthcases.sine(freq=3.0)
+    truth = truthcases.linear_truth(seal_fc=40.0, seal_fs=100.0, seal_vs=0.004)
     assert truth.effects == ('seal_friction',)
     out = rig.simulate(truth, t, x, np.zeros(t.size))
     v = out['velocity']
@@ -71,7 +59,7 @@ def test_seal_friction_closed_form_and_stribeck_dip():
     assert f[2] == pytest.approx(40.0, rel=1e-9)
     assert rig.seal_force(truth, np.array([-0.05]))[0] == pytest.approx(-40.0)
     with pytest.raises(ValueError, match='seal_fs'):
-        _linear(seal_fc=50.0, seal_fs=20.0)
+        truthcases.linear_truth(seal_fc=50.0, seal_fs=20.0)
 
 
 @pytest.mark.parametrize('effect, n', [('fluid_inertia', 91000), ('seal_friction', 91010)])

@@ -9,8 +9,10 @@ and by asserts on the drawn truth.
 
 import warnings
 
+import numpy as np
+
 from mr_suspension.identification import data as dataio
-from mr_suspension.truth import cases
+from mr_suspension.truth import cases, rig
 
 BASE = 7_000_000
 SPAN = 1_000_000
@@ -28,3 +30,16 @@ def record(columns, name='case'):
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         return dataio.build_record(name, columns)
+
+
+def sine(freq=2.0, amp=0.01, duration=3.0, rate=1000.0):
+    """Return ``(t, x)``: a displacement sine of ``freq`` [Hz] and ``amp`` [m]."""
+    t = np.arange(int(round(duration * rate))) / rate
+    return t, amp * np.sin(2 * np.pi * freq * t)
+
+
+def linear_truth(**kw):
+    """Return a purely viscous rig truth: no yield, no current dependence, no driver lag."""
+    base = {'f0': 0.0, 'c0': 1500.0, 'c1': 0.0, 'fy0': 0.0, 'fy1': 0.0, 'driver_tau': 0.0}
+    base.update(kw)
+    return rig.RigTruth(**base)
