@@ -428,8 +428,11 @@ def sensor_noise(p, s):
 
 
 @njit(cache=True)
-def controller_step(cid, p, s, m, dt):
-    """Return the current command of law ``cid`` for measurements ``m`` (module doc)."""
+def _measure(p, s, m, dt):
+    """Sensor noise, velocity estimates and resolution of one sample of measurements ``m``.
+
+    Returns ``(x, a_s, a_u, v_s, v, v_u, i_field)`` as every law reads them.
+    """
     x = m[M_STROKE]
     a_s = m[M_ACC_S]
     a_u = m[M_ACC_U]
@@ -467,6 +470,49 @@ def controller_step(cid, p, s, m, dt):
         a_s = 0.0
     # Keep the inverse model's state in step with the damper (field estimate or last command).
     i_field = m[M_FIELD] if m[M_FIELD] == m[M_FIELD] else s[S_ILAST]
+    return x, a_s, a_u, v_s, v, v_u, i_field
+
+
+@njit(cache=True)
+def _finish(p, s, x, v, i_field, i, dt):
+    """Clamp the command, advance the controller's damper-model copy, remember the command."""
+    i = clamp_current(p, i)
+    _model_update(p, s, x, v, i_field, dt)
+    s[S_ILAST] = i
+    return i
+
+
+@njit(cache=True)
+def measure(p, s, m, dt):
+    """Advance the corner's estimation with measurements ``m``; return what the laws read.
+
+    ``(x, a_s, a_u, v_s, v, v_u, i_field)``; with :func:`force_command` the two halves of a
+    step of a force law whose ``f_des`` is computed outside the corner.
+    """
+    return _measure(p, s, m, dt)
+
+
+@njit(cache=True)
+def force_command(p, s, x, v, i_field, f_des, dt):
+    """Return the current command for a desired damper force ``f_des`` [N].
+
+    The corner's inverse model with the passivity clip and clamp, as the force laws of
+    :func:`controller_step`; ``x, v, i_field`` from :func:`measure` of the same sample.
+    """
+    return _finish(p, s, x, v, i_field, _inverse(p, s, x, v, f_des, dt), dt)
+
+
+@njit(cache=True)
+def force_step(p, s, m, f_des, dt):
+    """Return the current command for ``f_des`` [N] (:func:`measure`, :func:`force_command`)."""
+    x, a_s, a_u, v_s, v, v_u, i_field = _measure(p, s, m, dt)
+    return force_command(p, s, x, v, i_field, f_des, dt)
+
+
+@njit(cache=True)
+def controller_step(cid, p, s, m, dt):
+    """Return the current command of law ``cid`` for measurements ``m`` (module doc)."""
+    x, a_s, a_u, v_s, v, v_u, i_field = _measure(p, s, m, dt)
     i = p[P_IMIN]
     if cid == CTRL_CONSTANT:
         i = p[P_CURRENT]
@@ -504,7 +550,4 @@ def controller_step(cid, p, s, m, dt):
     elif cid == CTRL_FEBC:
         i = febc_step(s[S_FEBC:S_FEBC + 4], x, dt, p[P_F1], p[P_F2], p[P_IBODY], p[P_IMIN],
                       p[P_IROAD], p[P_FTAU], p[P_XBAND])
-    i = clamp_current(p, i)
-    _model_update(p, s, x, v, i_field, dt)
-    s[S_ILAST] = i
-    return i
+    return _finish(p, s, x, v, i_field, i, dt)

@@ -9,11 +9,12 @@ control laws, are read here.
 
 from mr_suspension.control.laws import ControllerParams, LAW_IDS
 from mr_suspension.core.paramsets import (available, build_set, config_dir, KINDS, load_damper,
-                                          load_driver, load_vehicle, load_yaml, PACKAGE,
-                                          share_candidates, share_dir)
+                                          load_driver, load_full_car, load_vehicle, load_yaml,
+                                          PACKAGE, share_candidates, share_dir)
 
 __all__ = ['available', 'config_dir', 'configure', 'KINDS', 'load_controller', 'load_damper',
-           'load_driver', 'load_vehicle', 'load_yaml', 'PACKAGE', 'share_candidates', 'share_dir']
+           'load_driver', 'load_full_car', 'load_vehicle', 'load_yaml', 'PACKAGE',
+           'share_candidates', 'share_dir']
 
 
 def load_controller(name):

@@ -15,6 +15,7 @@ import yaml
 
 from mr_suspension.core.damper import damper_from_dict
 from mr_suspension.core.driver import DriverParams, from_fitted_model
+from mr_suspension.core.full_car import FullCarParams
 from mr_suspension.core.quarter_car import QuarterCarParams
 
 KINDS = ('vehicles', 'dampers', 'drivers', 'controllers', 'scenarios')
@@ -118,7 +119,18 @@ def build_set(kind, name, make):
 
 def load_vehicle(name):
     """Load quarter-car parameters from ``config/vehicles`` (every parameter is required)."""
-    return build_set('vehicles', name, lambda d, p: QuarterCarParams.from_dict(d, source=p))
+    def make(data, path):
+        if 'front' in data and 'rear' in data:
+            raise ValueError(f'{path}: is a full car (front and rear corners); load it with '
+                             'load_full_car, name one corner (<name>:front_left, ...) or give '
+                             'a quarter-car file')
+        return QuarterCarParams.from_dict(data, source=path)
+    return build_set('vehicles', name, make)
+
+
+def load_full_car(name):
+    """Load full-car parameters (body, axles, ``front`` and ``rear`` corners) from a file."""
+    return build_set('vehicles', name, lambda d, p: FullCarParams.from_dict(d, source=p))
 
 
 def load_damper(name):
