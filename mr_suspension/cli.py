@@ -17,7 +17,7 @@ from mr_suspension.core.simulator import simulate
 PLUGIN_COMMANDS = {'mr_suspension.nodes.cli': ('nodes',)}
 # Subcommands contributed by the other parts of the package (each has register(subparsers)).
 PLUGINS = ('mr_suspension.identification.cli', 'mr_suspension.evaluation.cli',
-           'mr_suspension.evaluation.tune_cli',
+           'mr_suspension.evaluation.tune_cli', 'mr_suspension.evaluation.full_car_cli',
            'mr_suspension.nodes.cli', 'mr_suspension.bagtools')
 
 METRIC_LABELS = {
@@ -149,8 +149,9 @@ def _law_list(text):
 def cmd_demo(args):
     """Run the default scenario set: bump and ISO 8608 road, semi-active vs passive.
 
-    Then the quick tuning study (:func:`demo_tuning`), the node set and a diagnosis of real
-    rig data (``identification.cli.demo``).
+    Then the quick tuning study (:func:`demo_tuning`), the full car (tuned modal sky-hook,
+    carpet plot, one-side bump), the node set and a diagnosis of real rig data
+    (``identification.cli.demo``).
     """
     out = output_dir(args.out)
     cfgs = {name: build_corner(name, 'city_car', 'rd1005_bingham', 'wonder_box')
@@ -164,6 +165,11 @@ def cmd_demo(args):
         (out / f'{name}_metrics.json').write_text(json.dumps(metrics, indent=2))
         lines.append(metrics_table(metrics, f'{name} ({road.name}, {road.duration:g} s)'))
     lines += demo_tuning(out / 'tune', args.quick_laws)
+    if not args.no_full_car:
+        from mr_suspension.evaluation import full_car, full_car_cli
+        plant = full_car.FullCarPlant()
+        lines += [''] + full_car_cli.demo(plant, ('modal_skyhook', 'skyhook'),
+                                          output_dir(out / 'full_car'))
     text = '\n'.join(lines)
     (out / 'metrics.md').write_text(text)
     print(text)
@@ -243,12 +249,15 @@ def build_parser():
                        description='Run the default demo: bump and ISO 8608 class C road, '
                                    'skyhook vs passive at 0 A and 1 A; a quick tuning of the '
                                    'laws with the carpet plot against the passive damper '
-                                   '(out/tune); then the ROS 2 node set with a recorded bag '
+                                   '(out/tune); the full car tuned with modal sky-hook '
+                                   '(out/full_car); then the ROS 2 node set with a recorded bag '
                                    'when available; finally a diagnosis of real rig data '
                                    '(six vrths sine tests, validated on its earthquake '
                                    'record) into out/diagnose.')
     p.add_argument('--out', default='out/demo', help='output directory')
     p.add_argument('--no-nodes', action='store_true', help='skip the ROS 2 node-set run')
+    p.add_argument('--no-full-car', action='store_true',
+                   help='skip the full-car tuning and one-side bump (out/full_car)')
     p.add_argument('--no-diagnosis', action='store_true',
                    help='skip the diagnosis of the shared vrths rig data')
     p.add_argument('--vrths', default=None, metavar='DIR',
