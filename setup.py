@@ -6,7 +6,8 @@ import os
 from setuptools import find_packages, setup
 
 PACKAGE = 'mr_suspension'
-NODES = ['plant', 'controller', 'actuator', 'recorder', 'replay']
+NODES = ['plant', 'controller', 'actuator', 'recorder', 'replay', 'full_car_plant',
+         'modal_controller', 'full_car_composed']
 
 setup(
     name=PACKAGE,
@@ -21,6 +22,7 @@ setup(
     ] + [
         (os.path.join('share', PACKAGE, 'config'), ['config/fastdds.xml']),
         (os.path.join('share', PACKAGE, 'msg_defs'), glob('msg_defs/*.yaml')),
+        (os.path.join('share', PACKAGE, 'launch'), glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'PyYAML', 'matplotlib',
                       'scikit-learn'],

@@ -52,14 +52,16 @@ def test_nodes_and_recorder_follow_contract(tmp_path):
             for sub in getattr(node, 'taps', node).subscriptions:
                 if sub.topic_name not in AUTO:
                     subs.setdefault(sub.topic_name, []).append(sub)
-            assert sorted(pubs) == sorted(full[t] for t in c.published_by(name)), name
-            assert {full[t] for t in c.subscribed_by(name)} <= set(subs), name
+            pub_names = c.published_by(name, scope='corner')
+            sub_names = c.subscribed_by(name, scope='corner')
+            assert sorted(pubs) == sorted(full[t] for t in pub_names), name
+            assert {full[t] for t in sub_names} <= set(subs), name
             assert set(subs) <= {full[t] for t in c.subscribed_by(name, optional=True)}, name
-            for t in c.published_by(name):
+            for t in pub_names:
                 pub = pubs[full[t]]
                 assert _type_name(pub.msg_type) == c.ALL_TOPICS[t].type
                 assert pub.qos_profile.depth == c.ALL_TOPICS[t].depth
-            for t in c.subscribed_by(name):
+            for t in sub_names:
                 # (the recorder's time source adds its own /clock subscription; in lock-step
                 # its queues are deeper, the loop running faster than real time)
                 depth = c.TOPICS[t].depth * (recorder.LOCKSTEP_QUEUE_FACTOR
@@ -94,3 +96,61 @@ def test_controller_rejects_unknown_coil_feedback():
     with ros_context() as (ctx, _, _):
         with pytest.raises(ValueError, match='coil_feedback'):
             ControllerNode(context=ctx, parameter_overrides=params(coil_feedback='maybe'))
+
+
+def test_full_car_nodes_follow_contract(tmp_path):
+    """Full-car plant, modal controller and the recorder of all corners in the car namespace.
+
+    Each corner topic under ``/<corner>/``, the car topics (``body/imu``) and the absolute ones
+    once; types and depths as the contract says.
+    """
+    from mr_suspension.nodes.full_car_plant import FullCarPlantNode
+    from mr_suspension.nodes.modal_controller import ModalControllerNode
+
+    def expand(names):
+        out = set()
+        for t in names:
+            if t in c.ABSOLUTE:
+                out.add(t)
+            elif c.ALL_TOPICS[t].scope == 'car':
+                out.add('/' + t)
+            else:
+                out |= {f'/{corner}/{t}' for corner in c.CORNERS}
+        return out
+
+    def contract_name(full):
+        if full in c.ABSOLUTE:
+            return full
+        first, _, rest = full.lstrip('/').partition('/')
+        return rest if first in c.CORNERS else full.lstrip('/')
+
+    lock = params(lockstep=True)
+    with ros_context() as (ctx, ex, nodes):
+        made = {
+            'full_car_plant': add(ex, nodes, FullCarPlantNode(context=ctx,
+                                                              parameter_overrides=lock)),
+            'modal_controller': add(ex, nodes, ModalControllerNode(
+                context=ctx, parameter_overrides=params(lockstep=True, coil_feedback='on'))),
+            'recorder': add(ex, nodes, RecorderNode(context=ctx, parameter_overrides=params(
+                output=str(tmp_path / 'bag'), lockstep=True,
+                namespaces=','.join(c.CORNERS)))),
+        }
+        for name, node in made.items():
+            pubs = {p.topic_name: p for p in node.publishers if p.topic_name not in AUTO}
+            subs = {}
+            for sub in getattr(node, 'taps', node).subscriptions:
+                if sub.topic_name not in AUTO:
+                    subs.setdefault(sub.topic_name, []).append(sub)
+            assert set(pubs) == expand(c.published_by(name)), name
+            assert expand(c.subscribed_by(name)) <= set(subs), name
+            assert set(subs) <= expand(c.subscribed_by(name, optional=True)), name
+            for full, pub in pubs.items():
+                t = c.ALL_TOPICS[contract_name(full)]
+                assert _type_name(pub.msg_type) == t.type and pub.qos_profile.depth == t.depth
+            factor = recorder.LOCKSTEP_QUEUE_FACTOR if name == 'recorder' else 1
+            for full, group in subs.items():
+                t = c.ALL_TOPICS[contract_name(full)]
+                assert any(_type_name(s.msg_type) == t.type and s.qos_profile.depth
+                           == t.depth * factor for s in group), (name, full)
+        assert set(made['recorder'].counts) == expand(list(c.TOPICS) + list(c.CAR_TOPICS))
+        assert len(made['recorder'].counts) == 4 * (len(c.TOPICS) - 1) + 2

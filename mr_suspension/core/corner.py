@@ -25,6 +25,7 @@ from mr_suspension.control.laws import ControllerParams, LAW_IDS
 from mr_suspension.core import config as cfg
 from mr_suspension.core.damper import law_id_of
 from mr_suspension.core.driver import DriverParams
+from mr_suspension.core.full_car import AXLES, CORNERS
 from mr_suspension.core.quarter_car import QuarterCarParams
 from mr_suspension.core.simulator import CornerConfig, simulate_batch
 
@@ -34,9 +35,22 @@ def _is_path(value):
 
 
 def load_vehicle(value):
-    """Vehicle parameters from an object, a ``config/vehicles`` name or a YAML path."""
+    """Vehicle parameters from an object, a ``config/vehicles`` name or a YAML path.
+
+    ``<full car>:<corner>`` (a corner of :data:`~mr_suspension.core.full_car.CORNERS` or an
+    axle, ``front`` or ``rear``) is that corner of a full-car set as a quarter car, its sprung
+    mass the body's static share (e.g. ``lisa_full_car:front_left``): what the corner nodes of
+    a full car use.
+    """
     if isinstance(value, QuarterCarParams):
         return value
+    name, sep, corner = str(value).rpartition(':')
+    if sep and corner in CORNERS + AXLES:
+        index = CORNERS.index(corner) if corner in CORNERS else 2 * AXLES.index(corner)
+        return cfg.load_full_car(name).corner(index)
+    if sep and name in cfg.available('vehicles'):
+        raise ValueError(f'vehicle {value!r}: unknown corner {corner!r}; give one of '
+                         f'{", ".join(CORNERS + AXLES)}')
     return cfg.load_vehicle(value)
 
 

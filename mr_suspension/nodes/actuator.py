@@ -139,6 +139,7 @@ class ActuatorNode(Node):
         self.last_x = 0.0
         self.applied = self.safe_current  # current last given to the driver
         self.n_alone = 0  # driver steps without motion (plant dead)
+        self.n_publish_failed = 0
         self.health = health.Health(self, f'safe current {self.safe_current:g} A to the driver',
                                     recovery_time, diagnostic_period, self.lockstep,
                                     self._diagnostic_values)
@@ -229,7 +230,7 @@ class ActuatorNode(Node):
             n = 1000
         for _ in range(n):
             coil = self.stepper.step(self.safe_current, self.last_x, 0.0)[0]
-            self.pub_coil.publish(self.tpl_coil.pack(0, coil))
+            common.publish(self, self.pub_coil, self.tpl_coil.pack(0, coil))
         self.driver_time += n * dt
         self.n_alone += n
         self.applied = self.safe_current
@@ -260,7 +261,7 @@ class ActuatorNode(Node):
                 # A sample the plant re-sent after a stall: answer again if answered.
                 self.n_repeated += 1
                 if stamp in self.answers:
-                    self.pub_force.publish(self.answers[stamp])
+                    common.publish(self, self.pub_force, self.answers[stamp])
                 return
             self.n_motion += 1
             self.motions[stamp] = motion
@@ -325,13 +326,13 @@ class ActuatorNode(Node):
 
     def _publish(self, stamp, x, v, coil, _field, force, tangent):
         raw = self.tpl_force.pack(stamp, x, v, force, tangent)
-        self.pub_force.publish(raw)
+        common.publish(self, self.pub_force, raw)
         if self.lockstep:
             self.answers[stamp] = raw
             if len(self.answers) > 32:
                 del self.answers[next(iter(self.answers))]
         self.n_forces += 1
-        self.pub_coil.publish(self.tpl_coil.pack(0, coil))
+        common.publish(self, self.pub_coil, self.tpl_coil.pack(0, coil))
 
     def drain(self, executor):
         """On shutdown, handle the messages still queued (clean statistics)."""
@@ -344,7 +345,8 @@ class ActuatorNode(Node):
                                repeated_motion=self.n_repeated,
                                rejected=self.n_rejected, clamped=self.n_clamped,
                                fallback_episodes=self.health.episodes,
-                               driver_steps_without_motion=self.n_alone)
+                               driver_steps_without_motion=self.n_alone,
+                               publish_failed=self.n_publish_failed)
         self.stats.write()
 
 

@@ -25,6 +25,8 @@ _STAMP = struct.Struct('<iI')
 _U32 = struct.Struct('<I')
 _D = struct.Struct('<d')
 _IMU_SKIP = 8 * (4 + 9 + 3 + 9)  # orientation, its covariance, angular velocity, covariance
+_IMU_GYRO = 8 * (4 + 9)  # orientation and its covariance
+_DD = struct.Struct('<dd')
 
 
 def _plain_le(raw):
@@ -71,6 +73,24 @@ def imu_acc_z(raw):
     off = (off + 7) & ~7
     (az,) = _D.unpack_from(raw, 4 + off + _IMU_SKIP + 16)
     return stamp, az
+
+
+def imu_body(raw):
+    """Return (stamp ns, angular_velocity.x, angular_velocity.y, linear_acceleration.z).
+
+    Of a serialized ``sensor_msgs/Imu``: the full car's body IMU (roll rate, pitch rate,
+    vertical specific force).
+    """
+    if not _plain_le(raw):
+        msg = deserialize_message(raw, Imu)
+        s = msg.header.stamp
+        return (s.sec * 1_000_000_000 + s.nanosec, msg.angular_velocity.x,
+                msg.angular_velocity.y, msg.linear_acceleration.z)
+    stamp, off = _header(raw)
+    off = (off + 7) & ~7
+    wx, wy = _DD.unpack_from(raw, 4 + off + _IMU_GYRO)
+    (az,) = _D.unpack_from(raw, 4 + off + _IMU_SKIP + 16)
+    return stamp, wx, wy, az
 
 
 def joint_state(raw):

@@ -18,6 +18,7 @@ import time
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 import rclpy
 from rclpy.experimental import EventsExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 import yaml
@@ -128,6 +129,24 @@ def drain(executor, node, idle=0.1, limit=3.0):
                or time.monotonic() > end, limit + 1.0, step=0.02)
 
 
+def publish(node, pub, raw):
+    """Publish ``raw``; on a middleware refusal log (throttled), count and return False.
+
+    A reliable writer whose readers lag a full queue behind (a starved recorder on an
+    overloaded machine) can refuse a sample after blocking; the fail-safe nodes must keep
+    running then (the peers' timeouts see the gap), so the refusal is counted in
+    ``node.n_publish_failed``, not raised.
+    """
+    try:
+        pub.publish(raw)
+        return True
+    except _rclpy.RCLError as exc:
+        node.n_publish_failed = getattr(node, 'n_publish_failed', 0) + 1
+        node.get_logger().error(f'{node.get_name()}: {pub.topic_name} not published ({exc}); '
+                                f'{node.n_publish_failed} so far', throttle_duration_sec=5.0)
+        return False
+
+
 def node_defaults_path(node):
     """Path of ``config/nodes/<node>.yaml``."""
     return cfg.config_dir() / 'nodes' / f'{node}.yaml'
@@ -182,6 +201,51 @@ def corner_config(vehicle='city_car', damper='rd1005_bingham', driver='wonder_bo
     of the corner (vehicle, damper model, driver range).
     """
     return build_corner(controller, vehicle, damper, driver, dt=1.0 / rate)
+
+
+def declare_full_car(node, defaults, modal=None):
+    """Declare the parameter-set names and rate of a full-car node; return the FullCarConfig.
+
+    ``vehicle`` names a full-car set (body and axles); ``damper``, ``driver`` and
+    ``controller`` apply to all four corners (with ``modal``, a
+    :class:`~mr_suspension.control.modal.ModalParams`, the corner law gives each corner's
+    estimation, inverse model and current range).
+    """
+    names = {}
+    for kind, key, what in (
+            ('vehicles', 'vehicle', 'full-car parameter set (body, front and rear corners)'),
+            ('dampers', 'damper', 'damper parameter set of all four corners'),
+            ('drivers', 'driver', 'driver parameter set of all four corners'),
+            ('controllers', 'controller', 'controller parameter set of each corner')):
+        names[key] = declare(node, defaults, key, f'{what}: a name in config/{kind} or a YAML '
+                             'path')
+    rate = declare(node, defaults, 'rate', 'Fixed step rate [Hz] (all nodes must agree)',
+                   100.0, 10000.0)
+    return full_car_config(rate=rate, modal=modal, **names)
+
+
+def full_car_config(vehicle='lisa_full_car', damper='rd1005_bingham', driver='wonder_box',
+                    controller='skyhook_onoff', rate=1000.0, modal=None):
+    """Build the full car the nodes and the offline reference use from parameter-set names.
+
+    Corner ``i`` of it (:meth:`~mr_suspension.core.full_car_sim.FullCarConfig.corner`) equals
+    :func:`corner_config` with ``vehicle='<vehicle>:<corner>'``, which the corner nodes use.
+    """
+    from mr_suspension.core import corner as cn
+    from mr_suspension.core.full_car_sim import FullCarConfig
+    data = cfg.load_yaml('vehicles', vehicle)
+    if isinstance(data, dict) and 'front' not in data and 'rear' not in data:
+        raise ValueError(f'vehicle {vehicle!r} is a quarter car (no front and rear corners); '
+                         'the full car needs a full-car set, e.g. lisa_full_car')
+    car = cfg.load_full_car(vehicle)
+    return FullCarConfig(car=car, damper=cn.load_damper(damper),
+                         driver=cn.load_driver(driver),
+                         controller=cn.load_controller(controller), modal=modal, dt=1.0 / rate)
+
+
+def corner_vehicle(vehicle, corner):
+    """Vehicle parameter of a full car's corner node: ``'<full car set>:<corner>'``."""
+    return f'{vehicle}:{corner}'
 
 
 def stamp_to_ns(stamp):
@@ -273,6 +337,45 @@ def spin_until(executor, condition, timeout_sec, step=0.05):
             return condition()
         executor.spin_until_future_complete(never, timeout_sec=min(step, left))
     return True
+
+
+def run_composed(builders, args=None):
+    """Run several nodes in one process and one events executor (a composed node set).
+
+    ``builders``: callables ``context -> node``; the first node's ``finished`` event (and
+    SIGINT/SIGTERM) ends the process. Then every node drains and closes as :func:`run` does.
+    """
+    ensure_environment()
+    stop = threading.Event()
+    context = rclpy.Context()
+    rclpy.init(args=args if args is not None else sys.argv, context=context,
+               signal_handler_options=SignalHandlerOptions.NO)
+
+    def _on_signal(signum, frame):
+        stop.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _on_signal)
+    nodes = []
+    try:
+        for build in builders:
+            nodes.append(build(context))
+        executor = EventsExecutor(context=context)
+        for node in nodes:
+            executor.add_node(node)
+        finished = getattr(nodes[0], 'finished', threading.Event())
+        spin_until(executor, lambda: stop.is_set() or finished.is_set() or not context.ok(),
+                   math.inf, step=0.1)
+        for node in nodes:
+            if hasattr(node, 'drain'):
+                node.drain(executor)
+    finally:
+        for node in nodes:
+            if hasattr(node, 'close'):
+                node.close()
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    return 0
 
 
 def run(node_cls, args=None):

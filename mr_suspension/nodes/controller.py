@@ -42,6 +42,7 @@ from std_msgs.msg import Float64
 from mr_suspension.core.stepper import ControllerStepper
 from mr_suspension.nodes import cdr, common, contract as c, health
 from mr_suspension.nodes.health import WARN
+from mr_suspension.nodes.sensor_watch import SensorWatch
 
 NODE = 'controller'
 # Frozen-sensor check with frozen_requires_motion: a sensor counts as moving when its value
@@ -115,9 +116,12 @@ class ControllerNode(Node):
             self.create_subscription(Float64, c.COIL_CURRENT, self._on_coil,
                                      common.qos(c.COIL_CURRENT, self.lockstep), raw=True)
         self.tpl_cmd = cdr.Template(Float64(), ('data',), stamped=False)
-        # Newest value and monotonic arrival time per sensor.
-        self.latest = {c.IMU_BODY: None, c.IMU_WHEEL: None, c.STROKE: None}
-        self.arrival = dict.fromkeys(self.latest, -math.inf)
+        # Newest value, arrival time and the real-time checks per sensor.
+        self.watch = SensorWatch(MOTION, self.sensor_timeout, self.frozen_timeout,
+                                 self.frozen_requires_motion)
+        self.latest = self.watch.latest
+        self.arrival = self.watch.arrival
+        self.n_sensor = self.watch.n_sensor
         self.coil = deque()  # lock-step: coil current k - 1 for the command of sample k
         self.dt_ns = common.step_ns(self.config)
         self.coil_latest = math.nan
@@ -125,19 +129,11 @@ class ControllerNode(Node):
         self.k = 0
         self.n_fallback = 0
         self.n_cmd = 0
-        self.n_dropped = 0
-        self.drop_offset = 0  # [ns] stamp minus node clock of the newest dropped sample
-        self.timeout_ns = int(self.sensor_timeout * 1e9)
         self.last_input = time.monotonic()
         self.last_law = -math.inf
         self.last_cmd = -math.inf
         self.n_cmd_run = 0
-        self.n_sensor = dict.fromkeys(self.latest, 0)
-        self.last_stamp = dict.fromkeys(self.latest)
-        self.changed = dict.fromkeys(self.latest, -math.inf)  # last change of the value
-        self.moved = dict.fromkeys(self.latest, -math.inf)  # last change by more than MOTION
-        self.moved_from = dict.fromkeys(self.latest)
-        self.clock_event = -math.inf
+        self.n_publish_failed = 0  # refused by the middleware (common.publish)
         self.timer = None
         self.gate = None
         self.health = health.Health(self, f'fallback current {self.fallback_current:g} A '
@@ -163,6 +159,11 @@ class ControllerNode(Node):
         """True while the fallback current is commanded."""
         return self.health.fallback
 
+    @property
+    def n_dropped(self):
+        """Samples dropped for a stamp off the node clock by more than ``sensor_timeout``."""
+        return self.watch.n_dropped
+
     # -- inputs ----------------------------------------------------------------------------
 
     def _store(self, topic, stamp, value):
@@ -170,27 +171,13 @@ class ControllerNode(Node):
         if not self.stats.marked:
             self.stats.mark()
         self.last_input = time.monotonic()
-        self.n_sensor[topic] += 1
-        if not self.lockstep:
-            offset = stamp - self.get_clock().now().nanoseconds
-            if offset < -self.timeout_ns or offset > self.timeout_ns:
-                self.n_dropped += 1  # too old (or from the future) by the node clock
-                self.drop_offset = offset
-                return
-            last = self.last_stamp[topic]
-            if last is not None and (stamp < last or (stamp - last) - 1e9 * (
-                    now - self.arrival[topic]) > self.timeout_ns):
-                self._clock_jump(topic, stamp - last, now)
-            self.last_stamp[topic] = stamp
-            if value != self.latest[topic]:
-                self.changed[topic] = now
-            ref = self.moved_from[topic]
-            if math.isfinite(value) and (ref is None or abs(value - ref) > MOTION[topic]):
-                if ref is not None:  # (the first value is no motion)
-                    self.moved[topic] = now
-                self.moved_from[topic] = value
-        self.latest[topic] = value
-        self.arrival[topic] = now
+        accepted, jump = self.watch.receive(
+            topic, stamp, value, now,
+            None if self.lockstep else self.get_clock().now().nanoseconds)
+        if not accepted:
+            return
+        if jump is not None:
+            self._clock_jump(topic, stamp, jump, now)
         if self.lockstep and (stamp < self.k * self.dt_ns
                               or not common.check_grid(self, stamp, self.dt_ns)):
             return  # lock-step: a sample the plant re-sent after a stall, already controlled
@@ -245,7 +232,7 @@ class ControllerNode(Node):
     def _publish(self, i_cmd, now):
         if self.health.fallback:
             self.n_fallback += 1
-        self.pub_cmd.publish(self.tpl_cmd.pack(0, float(i_cmd)))
+        common.publish(self, self.pub_cmd, self.tpl_cmd.pack(0, float(i_cmd)))
         self.last_cmd = now
         self.n_cmd += 1
         if self.stats.marked:
@@ -253,57 +240,32 @@ class ControllerNode(Node):
 
     # -- fail-safe (real time) ---------------------------------------------------------------
 
-    def _clock_jump(self, topic, delta_ns, now):
-        self.clock_event = now
+    def _clock_jump(self, topic, stamp, delta_ns, now):
         if delta_ns < 0:  # the old time base's incomplete samples will never complete
-            stamp = self.last_stamp[topic] + delta_ns
             for key in [k for k in self.pending if k > stamp]:
                 del self.pending[key]
         if 'clock' not in self.health.faults:
-            way = 'back' if delta_ns < 0 else 'forward'
-            self.health.set('clock', WARN, f'{topic} stamps jumped {way} by '
-                            f'{abs(delta_ns) * 1e-9:.3f} s against their arrival (clock jump)',
-                            now)
+            self.health.set('clock', WARN, self.watch.jump_reason(topic, delta_ns), now)
 
     def _stale(self, now):
-        stale = [t for t in self.latest
-                 if self.latest[t] is None or now - self.arrival[t] > self.sensor_timeout]
-        if stale:
-            reason = f'sensor data stale for more than {self.sensor_timeout:g} s ' \
-                f'({", ".join(stale)})'
-            if self.n_dropped and all(self.latest[t] is not None for t in stale):
-                reason += f'; {self.n_dropped} samples dropped so far, newest stamped ' \
-                    f'{self.drop_offset * 1e-9:+.3f} s off the node clock'
-            return reason
-        if self.trigger == 'sample' and now - self.last_law > self.sensor_timeout:
+        reason = self.watch.stale(now)
+        if reason is None and self.trigger == 'sample' \
+                and now - self.last_law > self.sensor_timeout:
             return 'no complete sensor sample (same stamp on imu/body, imu/wheel and stroke) ' \
                 f'for {self.sensor_timeout:g} s; use trigger: timer for unsynchronised sensors'
-        return None
-
-    def _frozen(self, now):
-        fresh = [t for t in self.latest if now - self.arrival[t] <= self.sensor_timeout]
-        frozen = [t for t in fresh if now - self.changed[t] > self.frozen_timeout]
-        if not frozen:
-            return None
-        if self.frozen_requires_motion and not any(
-                now - self.moved[t] <= self.frozen_timeout for t in fresh if t not in frozen):
-            return None  # no other sensor moves: a corner at rest (exact simulated values)
-        return f'sensor value frozen for more than {self.frozen_timeout:g} s ' \
-            f'({", ".join(frozen)})'
+        return reason
 
     def _check(self, now):
-        for key, reason in (('stale', self._stale(now)), ('frozen', self._frozen(now))):
+        for key, reason in (('stale', self._stale(now)), ('frozen', self.watch.frozen(now))):
             if reason is not None:
                 self.health.set(key, WARN, reason, now)
             elif key in self.health.faults:
                 self.health.clear(key, now)
-        if 'clock' in self.health.faults and now - self.clock_event > self.sensor_timeout:
+        if 'clock' in self.health.faults and self.watch.jump_over(now):
             self.health.clear('clock', now)
 
     def _diagnostic_values(self):
-        now = self.clock()
-        ages = {t: 'never' if self.latest[t] is None else f'{1e3 * (now - self.arrival[t]):.1f}'
-                for t in self.latest}
+        ages = self.watch.ages_ms(self.clock())
         return (('fallback_current_A', f'{self.fallback_current:g}'),
                 ('commands_in_fallback', self.n_fallback),
                 ('samples_dropped', self.n_dropped)) + tuple(
@@ -352,7 +314,8 @@ class ControllerNode(Node):
                                fallback_steps=self.n_fallback,
                                stale_samples_dropped=self.n_dropped,
                                fallback_episodes=self.health.episodes,
-                               received=dict(self.n_sensor))
+                               received=dict(self.n_sensor),
+                               publish_failed=self.n_publish_failed)
         self.stats.write()
 
 

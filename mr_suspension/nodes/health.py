@@ -36,7 +36,8 @@ def steady_clock():
 class Health:
     """Active faults, fallback state with one log line per transition, ``/diagnostics``."""
 
-    def __init__(self, node, action, recovery_time, period, lockstep, values=None):
+    def __init__(self, node, action, recovery_time, period, lockstep, values=None, corner=None):
+        """``corner``: the corner this status is about, for a node that serves several."""
         self.node = node
         self.action = action  # e.g. 'safe current 1 A to the driver'
         self.recovery_time = recovery_time
@@ -45,7 +46,7 @@ class Health:
         # The node's clock (monotonic seconds), looked up per call: a test may swap it.
         self.clock = lambda: getattr(node, 'clock', time.monotonic)()
         self.log = node.get_logger()
-        self.label = node.get_name()
+        self.label = node.get_name() if corner is None else f'{node.get_name()} ({corner})'
         self.faults = {}  # key -> (level, reason)
         self.fallback = False
         self.started = False  # True once the node has left its start-up fallback
@@ -53,10 +54,15 @@ class Health:
         self.entered = 0.0
         self.episodes = 0
         self.last_pub = -math.inf
-        self.pub = node.create_publisher(DiagnosticArray, c.DIAGNOSTICS,
-                                         common.qos(c.DIAGNOSTICS, lockstep))
+        self.pub = getattr(node, 'diagnostics_pub', None) or node.create_publisher(
+            DiagnosticArray, c.DIAGNOSTICS, common.qos(c.DIAGNOSTICS, lockstep))
+        node.diagnostics_pub = self.pub
         self.name = f'{node.get_fully_qualified_name()}: fail-safe'
         self.hardware_id = node.get_namespace().strip('/') or 'corner'
+        if corner is not None:
+            self.name += f' {corner}'
+            ns = node.get_namespace().strip('/')
+            self.hardware_id = f'{ns}/{corner}' if ns else corner
 
     def has(self, key):
         """Return True while fault ``key`` is active."""

@@ -70,6 +70,11 @@ class RecorderNode(Node):
         storage = common.declare(self, d, 'storage', 'Storage plugin: mcap or sqlite3')
         topics = common.declare(self, d, 'topics', 'Comma-separated contract topics to record '
                                 '("" = all)')
+        namespaces = common.declare(
+            self, d, 'namespaces', 'Comma-separated corner namespaces relative to the '
+            'recorder namespace (full car: front_left,front_right,rear_left,rear_right): record '
+            'the corner topics under each, plus the car topics (body/imu) and /clock once ("" = '
+            'one corner: the recorder namespace)')
         self.lockstep = common.declare(self, d, 'lockstep', 'Subscribe transient-local, as the '
                                        'lock-step nodes publish (no message lost to discovery)')
         self.drain_grace = common.declare(self, d, 'drain_grace', 'On shutdown, still record '
@@ -94,10 +99,20 @@ class RecorderNode(Node):
         if storage not in STORAGES:
             raise ValueError(f'recorder: storage must be one of {list(STORAGES)}, '
                              f'got {storage!r}')
-        names = [t.strip() for t in topics.split(',') if t.strip()] or list(c.TOPICS)
-        unknown = sorted(set(names) - set(c.TOPICS))
+        corners = [n.strip().strip('/') for n in namespaces.split(',') if n.strip().strip('/')]
+        known = dict(c.TOPICS, **c.CAR_TOPICS)
+        names = [t.strip() for t in topics.split(',') if t.strip()] \
+            or list(c.TOPICS) + (list(c.CAR_TOPICS) if corners else [])
+        unknown = sorted(set(names) - set(known))
         if unknown:
-            raise ValueError(f'recorder: unknown topics {unknown}; contract: {sorted(c.TOPICS)}')
+            raise ValueError(f'recorder: unknown topics {unknown}; contract: {sorted(known)}')
+        if len(set(corners)) != len(corners):
+            raise ValueError(f'recorder: namespaces repeat a name: {namespaces!r}')
+        # (relative name to subscribe, contract name)
+        streams = [(f'{ns}/{name}', name) for name in names for ns in corners
+                   if name in c.TOPICS and name not in c.ABSOLUTE]
+        streams += [(name, name) for name in names
+                    if not corners or name in c.ABSOLUTE or name not in c.TOPICS]
         if not output:
             output = datetime.now().strftime('rosbag2_%Y_%m_%d-%H_%M_%S')
         self.path = Path(output)
@@ -123,9 +138,9 @@ class RecorderNode(Node):
                          namespace=self.get_namespace(), start_parameter_services=False,
                          enable_rosout=False)
         self.sources = []
-        for name in names:
-            t = c.TOPICS[name]
-            full = self.resolve_topic_name(name)
+        for rel, name in streams:
+            t = known[name]
+            full = self.resolve_topic_name(rel)
             msgdef, _ = store.generate_msgdef(t.type, ros_version=2)
             conn = self.writer.add_connection(full, t.type, msgdef, store.hash_rihs01(t.type))
             self.counts[full] = 0
@@ -134,7 +149,7 @@ class RecorderNode(Node):
                 # The lock-step loop runs at up to 4x real time: the contract's 1 s of queue is
                 # 0.25 s there, and a recorder held up longer lost the rest (a 2.6 s gap).
                 qos.depth = LOCKSTEP_QUEUE_FACTOR * qos.depth
-            sub = self.taps.create_subscription(message_class(t.type), name, _never, qos,
+            sub = self.taps.create_subscription(message_class(t.type), rel, _never, qos,
                                                 raw=True)
             # Lock-step: Clock and stamped messages carry the simulated time at one offset.
             timed = self.lockstep and (full == c.CLOCK or t.type in (c.IMU, c.JOINT_STATE))
@@ -144,7 +159,7 @@ class RecorderNode(Node):
         # as fast as the CPU allows and has no wake-up latency to protect, so a niced recorder
         # starved there and its 1 s queues overflowed (26 % of a 12 s run lost, gaps of 1.7 s).
         self.niceness = 0 if self.lockstep else niceness
-        self.get_logger().info(f'recorder: writing {len(names)} topics to {self.path} '
+        self.get_logger().info(f'recorder: writing {len(streams)} topics to {self.path} '
                                f'({storage})')
 
     def _poll(self):

@@ -9,6 +9,7 @@ from rclpy.parameter import Parameter
 
 from mr_suspension.core.metrics import rms
 from mr_suspension.nodes import common
+from mr_suspension.nodes import contract as c
 from mr_suspension.nodes.actuator import ActuatorNode
 from mr_suspension.nodes.controller import ControllerNode
 from mr_suspension.nodes.plant import PlantNode
@@ -91,3 +92,61 @@ def run_in_process(road, duration, controller, lockstep, coupling_delay=None, da
                     'duplicate_forces': plant.n_duplicates}
     return {'body_acc_rms': rms(acc), 'working_space_rms': rms(stroke),
             'tyre_load_rms': rms(tyre)}, counters
+
+
+def full_car_in_process(ctx, ex, nodes, road, duration, controller=None, modal=False,
+                        lockstep=True, coupling_delay=None, corner_params=None,
+                        modal_params=None, **plant_params):
+    """Build the full-car node set in one executor; return ``(plant, controllers, actuators)``.
+
+    Full-car plant, four corner controllers (or with ``modal`` the modal controller, returned
+    as the only controller) and four actuators in their corner namespaces, with the parameters
+    ``mr-suspension nodes --full-car`` gives them. ``corner_params`` (controllers and
+    actuators), ``modal_params`` and ``plant_params`` add parameters. The plant records its
+    figures per step in ``plant.figures`` (see :func:`full_car_figures`).
+    """
+    from mr_suspension.nodes.full_car_plant import FullCarPlantNode
+    from mr_suspension.nodes.modal_controller import ModalControllerNode
+    if controller is None:
+        controller = 'skyhook' if modal else 'skyhook_onoff'
+    model = {'lockstep': lockstep, 'controller': controller}
+    loop = {} if coupling_delay is None else {'coupling_delay': coupling_delay}
+    plant = add(ex, nodes, FullCarPlantNode(context=ctx, parameter_overrides=params(
+        road=road, duration=duration, start_delay=0.05, exit_at_end=False,
+        body_imu_subscribers=int(modal), **model, **loop, **plant_params)))
+    plant.figures = []
+
+    def record(_step=plant._advance):
+        _step()
+        p = plant.plant
+        plant.figures.append(p.imu() + tuple(
+            v for i in range(4) for v in (p.a_s(i), p.stroke(i),
+                                          p.f_t[i] - p.static_tyre_load[i])))
+
+    plant._advance = record
+    vehicle = plant.get_parameter('vehicle').value
+    ctls, acts = [], []
+    if modal:
+        ctls.append(add(ex, nodes, ModalControllerNode(context=ctx, parameter_overrides=params(
+            **dict(model, **(modal_params or {}))))))
+    for corner in c.CORNERS:
+        corner_p = dict(model, vehicle=common.corner_vehicle(vehicle, corner),
+                        **(corner_params or {}))
+        if not modal:
+            ctls.append(add(ex, nodes, ControllerNode(
+                context=ctx, namespace=corner, parameter_overrides=params(**corner_p))))
+        acts.append(add(ex, nodes, ActuatorNode(
+            context=ctx, namespace=corner, parameter_overrides=params(**dict(corner_p, **loop)))))
+    return plant, ctls, acts
+
+
+def full_car_figures(plant):
+    """Figures of :func:`mr_suspension.nodes.launch.full_car_offline` from the plant's steps."""
+    import numpy as np
+    data = np.array(plant.figures)
+    out = {'heave_acc_rms': rms(data[:, 0]), 'pitch_rate_rms': rms(data[:, 1]),
+           'roll_rate_rms': rms(data[:, 2])}
+    for i, tag in enumerate(('fl', 'fr', 'rl', 'rr')):
+        for j, name in enumerate(('body_acc_rms', 'working_space_rms', 'tyre_load_rms')):
+            out[f'{name}_{tag}'] = rms(data[:, 3 + 3 * i + j])
+    return out
