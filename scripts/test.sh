@@ -9,7 +9,7 @@ if [ "${1:-}" = --install-only ]; then
   tmp=$(mktemp -d)
   trap 'rm -rf "$tmp"' EXIT
   mkdir "$tmp/src"
-  cp -r setup.py setup.cfg package.xml resource config msg_defs mr_suspension "$tmp/src/"
+  cp -r setup.py setup.cfg package.xml resource config msg_defs launch mr_suspension "$tmp/src/"
   find "$tmp/src" -name __pycache__ -prune -exec rm -rf {} +
   .venv/bin/python -m venv --without-pip "$tmp/venv"
   purelib='import sysconfig; print(sysconfig.get_paths()["purelib"])'
@@ -67,7 +67,11 @@ pytest_part() {
   if [ "$rc" -ne 0 ] && [ "$rc" -ne 5 ]; then exit "$rc"; fi
   return 0
 }
+# MR_TEST_FULL=1 also runs the tests marked `slow` (further truth seeds of behaviours the
+# reduced suite checks on their first seed).
+slow="and not slow"
+[ "${MR_TEST_FULL:-0}" = 1 ] && slow=""
 echo '== pytest: tests that start ROS nodes'
-pytest_part -m ros "$@"
+pytest_part -m "ros $slow" --durations=15 "$@"
 echo '== pytest: the rest, two workers'
-pytest_part -m 'not ros' -n "${MR_TEST_WORKERS:-2}" "$@"
+pytest_part -m "not ros $slow" -n "${MR_TEST_WORKERS:-2}" --dist loadgroup --durations=15 "$@"

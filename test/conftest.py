@@ -29,8 +29,11 @@ ROS_MODULE = re.compile(r'\brclpy\b|mr_suspension\.nodes\b|from mr_suspension im
 
 
 def pytest_configure(config):
-    """Register the ``ros`` mark."""
+    """Register the ``ros`` and ``slow`` marks."""
     config.addinivalue_line('markers', 'ros: the test starts ROS nodes (real-time timeouts)')
+    config.addinivalue_line('markers', 'slow: a further truth seed of a behaviour CI checks on '
+                                       'its first seed (scripts/test.sh runs it with '
+                                       'MR_TEST_FULL=1)')
 
 
 def pytest_collection_modifyitems(config, items):

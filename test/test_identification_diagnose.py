@@ -172,8 +172,9 @@ def test_constant_current_record_is_handled():
     assert np.isfinite(rep['baseline']['heldout_nrmse'])
 
 
-@pytest.mark.parametrize('effects', [('series_stiffness', 'current_lag'),
-                                     ('current_lag_asymmetric', 'series_stiffness')])
+@pytest.mark.parametrize('effects', [
+    pytest.param(('series_stiffness', 'current_lag'), marks=pytest.mark.slow),
+    ('current_lag_asymmetric', 'series_stiffness')])
 def test_threaded_fits_give_the_serial_result(monkeypatch, effects):
     """Fits on threads give the serial run's selection, parameters and held-out errors.
 

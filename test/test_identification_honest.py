@@ -554,7 +554,7 @@ def test_soft_series_spring_is_named_with_its_stiffness_not_a_delay():
     assert est.score(_record(unseen.columns)) < 1.5 * unseen.floor_nrmse
 
 
-@pytest.mark.parametrize('strength', [0.8, 0.95])
+@pytest.mark.parametrize('strength', [pytest.param(0.8, marks=pytest.mark.slow), 0.95])
 def test_loop_share_of_the_yield_force_is_recovered_once_the_loop_is_named(strength):
     """Truth: a Bouc-Wen loop carrying a share w of the yield force beside a static yield.
 
@@ -1034,7 +1034,8 @@ def test_block_errors_add_up_to_the_fold_errors():
     assert np.allclose(sums, fit.test, rtol=1e-9)
 
 
-@pytest.mark.parametrize('n', [25002, 25003, 25004])
+@pytest.mark.parametrize('n', [25002, pytest.param(25003, marks=pytest.mark.slow),
+                               pytest.param(25004, marks=pytest.mark.slow)])
 def test_spring_and_loop_restarts_leave_a_wrong_k1_valley(n, monkeypatch):
     """Bouc-Wen damper (truth integrator) behind a series spring of a few 1e5 N/m.
 

@@ -30,8 +30,9 @@ def _outcome(columns, jobs, monkeypatch):
     return res.causes, res.verdict, res.heldout['extended_nrmse']
 
 
-@pytest.mark.parametrize('n, effects', [(40001, ('hysteresis',)),
-                                        (40002, ('current_lag', 'series_stiffness'))])
+@pytest.mark.parametrize('n, effects', [
+    (40001, ('hysteresis',)),
+    pytest.param(40002, ('current_lag', 'series_stiffness'), marks=pytest.mark.slow)])
 def test_causes_and_verdict_survive_round_off_and_the_thread_count(n, effects, monkeypatch):
     case = truthcases.case(n, effects, sensor_faults=None, duration=6.0,
                            measured_current=None)
