@@ -23,6 +23,7 @@ from mr_suspension.control.modal import modal_step, N_MODAL_STATE
 from mr_suspension.core import full_car as fc
 from mr_suspension.core.car_road import CarRoad
 from mr_suspension.core.full_car_sim import FullCarConfig
+from mr_suspension.core.stepper import RoadClock
 
 N_CORNERS = fc.N_CORNERS
 
@@ -33,7 +34,7 @@ def _check_config(config, owner):
                          f'{type(config).__name__}')
 
 
-class FullCarPlantStepper:
+class FullCarPlantStepper(RoadClock):
     """Full car (body heave, pitch, roll and four wheels) over a :class:`CarRoad`, one step a time.
 
     Sample ``k`` is the state at ``t_k = k dt``; :meth:`step` advances to ``k + 1`` with each
@@ -72,21 +73,6 @@ class FullCarPlantStepper:
         n = fc.N_BODY_MAX + N_CORNERS
         self._wm = np.zeros((3, n, n))
         self._wv = np.zeros((12, n))
-
-    @property
-    def n_steps(self):
-        """Number of steps the road covers."""
-        return self.road.n_steps
-
-    @property
-    def done(self):
-        """True once the road is used up."""
-        return self.k >= self.road.n_steps
-
-    @property
-    def t(self):
-        """Time of the present sample [s]."""
-        return self.k * self.dt
 
     def motion(self, i):
         """Stroke and stroke rate ``(x_i, v_i)`` of corner ``i`` [m, m/s] (+ = extension)."""

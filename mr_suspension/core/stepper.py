@@ -148,7 +148,26 @@ class ActuatorStepper:
         return float(coil), float(field), float(f_d), float(c_d)
 
 
-class PlantStepper:
+class RoadClock:
+    """Sample count of a plant stepper driven over a road (``road``, ``k``, ``dt``)."""
+
+    @property
+    def n_steps(self):
+        """Number of steps the road covers."""
+        return self.road.n_steps
+
+    @property
+    def done(self):
+        """True once the road is used up."""
+        return self.k >= self.road.n_steps
+
+    @property
+    def t(self):
+        """Time of the present sample [s]."""
+        return self.k * self.dt
+
+
+class PlantStepper(RoadClock):
     """Quarter car driven over a road, one fixed step at a time.
 
     Sample ``k`` is the state at ``t_k = k dt``; :meth:`step` advances to ``k + 1`` with the road
@@ -171,21 +190,6 @@ class PlantStepper:
         self.f_t = self.static_tyre_load
         self.f_d = 0.0
         self.g = config.car.g
-
-    @property
-    def n_steps(self):
-        """Number of steps the road covers."""
-        return self.road.n_steps
-
-    @property
-    def done(self):
-        """True once the road is used up."""
-        return self.k >= self.road.n_steps
-
-    @property
-    def t(self):
-        """Time of the present sample [s]."""
-        return self.k * self.dt
 
     @property
     def stroke(self):

@@ -343,7 +343,9 @@ def run_composed(builders, args=None):
     """Run several nodes in one process and one events executor (a composed node set).
 
     ``builders``: callables ``context -> node``; the first node's ``finished`` event (and
-    SIGINT/SIGTERM) ends the process. Then every node drains and closes as :func:`run` does.
+    SIGINT/SIGTERM) ends the process; then every node drains (``drain``), closes (``close``)
+    and is destroyed. The process runs at the lowest ``niceness`` any of its nodes asks for
+    (a node without one asks for 0): one niced node lowers a process of its own, DDS included.
     """
     ensure_environment()
     stop = threading.Event()
@@ -360,6 +362,9 @@ def run_composed(builders, args=None):
     try:
         for build in builders:
             nodes.append(build(context))
+        niceness = min(getattr(node, 'niceness', 0) or 0 for node in nodes)
+        if niceness:
+            lower_priority(niceness)
         executor = EventsExecutor(context=context)
         for node in nodes:
             executor.add_node(node)
@@ -382,35 +387,7 @@ def run(node_cls, args=None):
     """Run one node until SIGINT/SIGTERM or until it asks to stop; clean shutdown either way.
 
     The node may define ``finished`` (a threading.Event it sets to end the process) and
-    ``close()`` (called after spinning stops, before the context is shut down).
+    ``close()`` (called after spinning stops, before the context is shut down). This is
+    :func:`run_composed` with one node.
     """
-    ensure_environment()
-    stop = threading.Event()
-    context = rclpy.Context()
-    rclpy.init(args=args if args is not None else sys.argv, context=context,
-               signal_handler_options=SignalHandlerOptions.NO)
-
-    def _on_signal(signum, frame):
-        stop.set()
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _on_signal)
-    node = None
-    try:
-        node = node_cls(context=context)
-        if getattr(node, 'niceness', 0):
-            lower_priority(node.niceness)  # a process of its own: whole process, DDS included
-        executor = EventsExecutor(context=context)
-        executor.add_node(node)
-        finished = getattr(node, 'finished', threading.Event())
-        spin_until(executor, lambda: stop.is_set() or finished.is_set() or not context.ok(),
-                   math.inf, step=0.1)
-        if hasattr(node, 'drain'):
-            node.drain(executor)
-    finally:
-        if node is not None:
-            if hasattr(node, 'close'):
-                node.close()
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
-    return 0
+    return run_composed([lambda context: node_cls(context=context)], args)
