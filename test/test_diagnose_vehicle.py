@@ -1,6 +1,7 @@
 """diagnose-vehicle: recovery on the independent vehicle truth, bad inputs, bag = CSV."""
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -332,3 +333,16 @@ def test_a_refitted_yield_force_and_strut_friction_are_one_signal(fy0_factor):
     assert pairs == ([] if fy0_factor == 1.0 else [('strut_friction', 'fy0')])
     if pairs:
         assert 'rig' in vehicle.SEPARATING[frozenset(pairs[0])]
+
+
+def test_a_current_stage_shorter_than_a_sample_is_not_a_finding():
+    """The current is known at the samples only: a lag or delay below one step is sampling."""
+    fit = SimpleNamespace(eta={'tau_rise': 5e-4, 'tau_fall': 9.9e-4, 'tau': 1.5e-3,
+                               'dead_time': 8e-4})
+    assert not vehicle.resolved(fit, 'current_lag_asymmetric', 1e-3)
+    assert vehicle.resolved(fit, 'current_lag', 1e-3)
+    assert not vehicle.resolved(fit, 'current_lag', 2e-3)  # the same lag at 500 Hz
+    assert not vehicle.resolved(fit, 'current_delay', 1e-3)
+    fit.eta['tau_fall'] = 4e-3  # a fast rise and a slow fall: resolved by its slow side
+    assert vehicle.resolved(fit, 'current_lag_asymmetric', 1e-3)
+    assert vehicle.resolved(fit, 'strut_friction', 1e-3)  # not a current stage

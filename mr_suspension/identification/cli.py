@@ -159,6 +159,10 @@ def _register_vehicle(subparsers):
     p.add_argument('--out', required=True, help='output directory')
     p.add_argument('--namespace', default=None,
                    help='corner namespace in the bag (e.g. front_left; default: the only one)')
+    p.add_argument('--car', default=None,
+                   help='a full car (config name such as lisa_full_car, or YAML): diagnose '
+                        'its four corners (namespaces front_left .. rear_right) with the '
+                        "body's coupling; --vehicle is then not used")
     p.add_argument('--road-topic', default=None,
                    help='bag topic with the known road/shaker displacement (Float64, or a '
                         'JointState with a "road" joint such as truth/state)')
@@ -178,6 +182,8 @@ def cmd_diagnose_vehicle(args):
     from mr_suspension.identification import vehicle
     output_dir(args.out)
     effects = tuple(e.strip() for e in args.effects.split(',') if e.strip())
+    if args.car is not None:
+        return _full_car(args, effects)
     nominal = vehicle.Nominal.load(args.vehicle, args.damper, args.driver)
     rep, _ = vehicle.diagnose_vehicle(args.data, args.out, nominal, effects,
                                       namespace=args.namespace, road_topic=args.road_topic,
@@ -193,6 +199,24 @@ def cmd_diagnose_vehicle(args):
         if rep['untestable']:
             print('untestable with these data: ' + ', '.join(rep['untestable']))
         print(f'wrote {Path(args.out) / "report.md"} and vehicle.yaml, damper.yaml, driver.yaml')
+    return 0
+
+
+def _full_car(args, effects):
+    from mr_suspension.identification import full_car
+    if args.namespace is not None:
+        raise dataio.DataError('--car diagnoses all four corners; leave out --namespace')
+    nominal = full_car.CarNominal.load(args.car, args.damper, args.driver)
+    rep, _ = full_car.diagnose_full_car(args.data, args.out, nominal, effects,
+                                        make_plots=not args.no_plots)
+    if not args.quiet:
+        causes = ', '.join(f'{c["effect"]} at {c["corner"]}' for c in rep['causes']) or 'none'
+        print(f'verdict: {rep["verdict"]}; causes: {causes}')
+        for c, r in rep['corners'].items():
+            h = r['heldout']
+            print(f'  {c}: {r["verdict"]}; {", ".join(r["causes"]) or "none"}; held-out '
+                  f'NRMSE {h["baseline_nrmse"]:.4f} -> {h["extended_nrmse"]:.4f}')
+        print(f'wrote {Path(args.out) / "report.md"} and a folder per corner')
     return 0
 
 

@@ -178,7 +178,9 @@ class Prepared:
         # (``F = k_stop (x - x_max)`` beyond rebound, ``(x - x_min)`` beyond bump; per nominal
         # m_s). A rougher unseen road reaches them where the fit's record did not.
         stop = np.maximum(xa - veh.stroke_max, 0.0) + np.minimum(xa - veh.stroke_min, 0.0)
-        self.known = -veh.k_stop * stop / veh.m_s
+        self.stop = -veh.k_stop * stop / veh.m_s
+        self.coupling = np.zeros_like(self.stop)
+        self.known = self.stop
         self.mount_q = {}  # top-mount rate per (K, C): see mount_fit
         self.n = start
         q = max(1, int(round(1.0 / (SEARCH_RATE * self.dt))))
@@ -192,6 +194,14 @@ class Prepared:
         self.v_scale = float(np.percentile(np.abs(np.concatenate(self.v)), 99)) or 1e-3
         self.imu_noise = max(math.sqrt(np.mean([vehicle_data._white(r.body_acc, r.dt) * 0.5
                                                 / r.dt for r in records])), 1e-9)
+
+    def set_coupling(self, coupling):
+        """Add a known acceleration from outside the corner (a full car's other corners)."""
+        coupling = np.asarray(coupling, dtype=float)
+        if coupling.shape != self.stop.shape or not np.all(np.isfinite(coupling)):
+            raise ValueError(f'coupling must be finite with shape {self.stop.shape}')
+        self.coupling = coupling
+        self.known = self.stop + coupling
 
     def grids(self):
         """Grids of the nonlinear parameters of each effect (scaled by the data)."""
@@ -219,30 +229,32 @@ def base_eta(nominal, coil):
     """Nonlinear parameters of the baseline: nominal v_y and current chain."""
     d = nominal.driver
     c0, c1, fy0, fy1, v_y = nominal.damper_coeffs()
-    if coil:
-        chain = (0.0, d.fluid_tau_rise, d.fluid_tau_fall, 0.0, 0.0)
+    if coil:  # the measured coil current: no driver stage, the fluid's lag
+        chain = (0.0, 0.0, 0.0, d.fluid_tau_rise, d.fluid_tau_fall)
     else:
         chain = (d.dead_time, d.tau_rise, d.tau_fall, d.fluid_tau_rise, d.fluid_tau_fall)
     return {'v_y': float(v_y), 'chain': tuple(float(c) for c in chain)}
 
 
 def _field(u, dt, effects, eta):
-    """Field current: nominal chain (lag rise/fall + dead time, fluid lag) and the effects.
+    """Field current: driver (lag rise/fall + dead time), the effects, then the fluid's lag.
 
     ``current_delay`` adds a dead time, ``current_lag`` a symmetric first-order stage and
-    ``current_lag_asymmetric`` a stage with its own rise/fall time constants, each in series
-    with the nominal chain (as a slower driver or fluid would be).
+    ``current_lag_asymmetric`` a stage with its own rise/fall time constants. The stages
+    switch their time constant with the direction of change, so their order matters: an extra
+    lag acts on the current before the fluid follows the field (a slower driver, or eddy
+    currents delaying the field behind the coil current), the fluid's lag comes last.
     """
     dead, tr, tf, ftr, ftf = eta['chain']
     if 'current_delay' in effects:
         dead = dead + eta['dead_time']
     y = engine.field_current(np.ascontiguousarray(u, dtype=float), dt, dead, tr, tf)
-    if ftr > 0 or ftf > 0:
-        y = engine.field_current(y, dt, 0.0, ftr, ftf)
     if 'current_lag' in effects:
         y = engine.field_current(y, dt, 0.0, eta['tau'], eta['tau'])
     if 'current_lag_asymmetric' in effects:
         y = engine.field_current(y, dt, 0.0, eta['tau_rise'], eta['tau_fall'])
+    if ftr > 0 or ftf > 0:
+        y = engine.field_current(y, dt, 0.0, ftr, ftf)
     return y
 
 
@@ -516,7 +528,7 @@ def mount_rates(P, fit, eta=None):
         vel.add('f_fric')
         ff, vf = th.get('f_fric', 0.0), eta['v_fric']
     idx = [j for j, n in enumerate(names) if n not in vel]
-    sx_all = X[:, idx] @ np.array([th.get(names[j], 0.0) for j in idx]) + P.known
+    sx_all = X[:, idx] @ np.array([th.get(names[j], 0.0) for j in idx]) + P.stop
     rho = eta['rho'] if 'direction_asymmetry' in fit.effects else 0.0
     out = []
     for k, sl in enumerate(P.slices):
@@ -1074,6 +1086,22 @@ def physical(fit, effect):
     return float(fit.theta[fit.names.index(name)]) > 0.0
 
 
+CURRENT_TIMES = {'current_delay': ('dead_time',), 'current_lag': ('tau',),
+                 'current_lag_asymmetric': ('tau_rise', 'tau_fall')}
+
+
+def resolved(fit, effect, dt):
+    """Whether ``effect``'s time constants in ``fit`` reach one sample step ``dt``.
+
+    A current delay or lag shorter than a sample moves the field current by less than the
+    sampling itself (the current is known only at the samples): not a finding at that rate.
+    """
+    names = CURRENT_TIMES.get(effect)
+    if names is None:
+        return True
+    return max(abs(fit.eta[n]) for n in names) >= dt * (1.0 - 1e-9)
+
+
 def _without(P, fit, e, rows):
     effects = tuple(x for x in fit.effects if x != e)
     return evaluate(P, effects, fit.eta, rows)
@@ -1144,6 +1172,10 @@ def select(P, effects, untestable, progress=None):
             acc.remove(e)
             steps.append({'stage': 'physical', 'effect': e, 'gain_mse': 0.0, 't': 0.0,
                           'accepted': False, 'why': f'{PHYSICAL_SIGN[e]} < 0 feeds energy in'})
+        for e in [e for e in acc if not resolved(kids[e], e, P.dt)]:
+            acc.remove(e)
+            steps.append({'stage': 'resolution', 'effect': e, 'gain_mse': 0.0, 't': 0.0,
+                          'accepted': False, 'why': 'time constants below one sample'})
         pred_parent = predict(P, parent)[rows]
         contrib = {}
         strong = {}
@@ -1180,13 +1212,22 @@ def select(P, effects, untestable, progress=None):
                 parent = red
                 changed = True
                 break
-    # Upgrade a symmetric lag to the asymmetric one when that pays (nested).
+    # The symmetric lag is nested in the asymmetric one: the asymmetric one is named only
+    # where it pays over the symmetric one by the same rule (either way round).
     if 'current_lag' in parent.effects and 'current_lag_asymmetric' in effects:
         red = _without(P, parent, 'current_lag', rows)
         up = search(P, red, 'current_lag_asymmetric', rows)
         steps.append(_step('current_lag->current_lag_asymmetric', up, parent, 'upgrade'))
-        if diagnose.accepted(up.test, parent.test):
+        if diagnose.accepted(up.test, parent.test) and resolved(up, 'current_lag_asymmetric',
+                                                                P.dt):
             parent = up
+    elif 'current_lag_asymmetric' in parent.effects and 'current_lag' in effects:
+        red = _without(P, parent, 'current_lag_asymmetric', rows)
+        down = search(P, red, 'current_lag', rows)
+        steps.append(_step('current_lag_asymmetric->current_lag', parent, down, 'nested'))
+        if not diagnose.accepted(parent.test, down.test) and resolved(down, 'current_lag',
+                                                                      P.dt):
+            parent = down
     # Final polish of every nonlinear parameter (a coordinate sweep, then a joint
     # Nelder-Mead; training error).
     keys = [k for k in parent.eta if k not in FIXED_ETA]
@@ -1305,7 +1346,6 @@ def corner_params(P, final, road):
         c['imu_timing'] = final.eta['imu_timing']
     dead, tr, tf, ftr, ftf = final.eta['chain']
     if P.coil:  # the driver's own dynamics are the nominal's or those fitted command -> coil
-        ftr, ftf = tr, tf  # with a coil current the chain's lag is the fluid's
         dr = P.nominal.driver
         dead, tr, tf = P.driver_fit if P.driver_fit else (dr.dead_time, dr.tau_rise,
                                                           dr.tau_fall)
@@ -1321,17 +1361,20 @@ def corner_params(P, final, road):
     return c
 
 
-def run(records, nominal=None, effects=ALL_EFFECTS, progress=None):
-    """Diagnose a corner from its records.
+def run(records, nominal=None, effects=ALL_EFFECTS, progress=None, prepared=None):
+    """Diagnose a corner from its records (or from ``prepared`` data with a coupling).
 
     Returns ``(VehicleDiagnosis, Prepared, predictions)``: the typed result, the prepared
     data it was fitted on and the outer-block predictions of baseline and extended model.
     """
-    nominal = nominal or Nominal.load()
     bad = [e for e in effects if e not in ALL_EFFECTS]
     if bad:
         raise DataError(f'unknown effect(s) {bad}; known: {", ".join(ALL_EFFECTS)}')
-    P = Prepared(records, nominal)
+    if prepared is None:
+        P = Prepared(records, nominal or Nominal.load())
+    else:
+        P = prepared
+    records, nominal = P.records, P.nominal
     findings = [f for r in records for f in r.findings] + accel_offset(P)
     untestable = testability(P)
     untestable = {e: v for e, v in untestable.items() if e in effects}

@@ -7,7 +7,7 @@ z up), ``stroke`` [m] (+ = extension), its rate from a zero-phase differentiator
 Pure numerics apart from reading bags through rosbags; no ROS client library.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 import math
 from pathlib import Path
 import warnings
@@ -59,6 +59,7 @@ class VehicleRecord:
     stroke_fused: np.ndarray = None
     crossover: float = None
     stroke_tau: float = 0.0
+    start: float = 0.0  # [s] the first sample's time in the source (``time`` starts at 0)
 
     def __post_init__(self):
         """Set the default mask: every sample usable."""
@@ -74,6 +75,12 @@ class VehicleRecord:
     def duration(self):
         """Record length [s]."""
         return self.n * self.dt
+
+    def trimmed(self, n):
+        """Return the record's first ``n`` samples."""
+        arrays = {f.name: getattr(self, f.name)[:n] for f in fields(self)
+                  if isinstance(getattr(self, f.name), np.ndarray)}
+        return replace(self, **arrays)
 
 
 def _norm(name):
@@ -128,7 +135,7 @@ def _ns_topics(topics, namespace):
             raise DataError(f'no imu/body topic in the bag; topics: {sorted(topics)}')
         if len(spaces) > 1:
             raise DataError(f'the bag holds several corners {spaces}; pick one with '
-                            '--namespace NAME')
+                            '--namespace NAME, or diagnose a full car with --car NAME')
         ns = spaces[0]
     out = {}
     for rel, q in TOPICS.items():
@@ -319,8 +326,9 @@ def build(name, cols):
     # fast content: no band limit (a low-pass at the stroke's motion band cost 8x the error).
     cut = 0.45 / dt
     xf, rate = fuse(x_used, a_rel, dt, fc, cut, lag)
-    return VehicleRecord(name=name, time=t - t[0], dt=dt, body_acc=body, wheel_acc=wheel,
-                         stroke=x, stroke_rate=rate, current_command=data['current_command'],
+    return VehicleRecord(name=name, time=t - t[0], start=float(t[0]), dt=dt, body_acc=body,
+                         wheel_acc=wheel, stroke=x, stroke_rate=rate,
+                         current_command=data['current_command'],
                          coil_current=data.get('coil_current'), road=data.get('road'),
                          cutoff=cut, mask=mask, findings=findings, stroke_fused=xf,
                          crossover=fc, stroke_tau=lag)
