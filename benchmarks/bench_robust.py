@@ -12,10 +12,12 @@ only by round-off:
 
 Each variant runs in a fresh process of its own (the environment must be set before numpy
 and numba load). Records are the rig benchmark's (``bench_diagnose``: out-of-model cases of
-``--seed``) and the car benchmark's (``bench_diagnose_vehicle``).
+``--seed``) the car benchmark's (``bench_diagnose_vehicle``) and the full-car benchmark's
+(``bench_diagnose_full_car``).
 
     .venv/bin/python benchmarks/bench_robust.py --family rig --cases 300 --seed 0
     .venv/bin/python benchmarks/bench_robust.py --family car --cases 200 --duration 60
+    .venv/bin/python benchmarks/bench_robust.py --family full_car --cases 40 --seed0 5000
     .venv/bin/python benchmarks/bench_robust.py --family rig --cases 12 --first 0  # a subset
 """
 
@@ -100,6 +102,25 @@ def _car_outcome(seed, kind, duration, perturb):
             'heldout': float(res.heldout['extended_nrmse'])}
 
 
+def _full_car_outcome(seed, effects, duration, perturb):
+    from mr_suspension.identification import full_car, vehicle_data
+    from mr_suspension.identification.data import DataError
+    from mr_suspension.truth.full_car import make_full_car_case
+    case = make_full_car_case(seed, effects=tuple(effects), duration=duration)
+    try:
+        recs = {c: [vehicle_data.build(c, _perturb(cols, seed + i) if perturb else cols)]
+                for i, (c, cols) in enumerate(case.columns.items())}
+    except DataError as exc:
+        return {'error': str(exc)[:80]}
+    diag, _ = full_car.run(recs, full_car.CarNominal.load())
+    res = diag.corners.values()
+    return {'causes': [f'{c}/{e}' for c, e in diag.causes],
+            'verdict': ','.join(r.verdict for r in res),
+            'ambiguous': sorted(f'{c}/' + '+'.join(p) for c, r in diag.corners.items()
+                                for p in r.ambiguous),
+            'heldout': float(sum(r.heldout['extended_nrmse'] for r in res))}
+
+
 def _jobs(args):
     """``[(seed, spec)]`` of the records, as the two benchmarks draw them."""
     if args.family == 'rig':
@@ -108,6 +129,11 @@ def _jobs(args):
         from mr_suspension.truth import rig
         effs = bench_diagnose.case_list(args.first + args.cases, args.seed, rig.EFFECTS)
         return [(args.seed * 100003 + k, list(effs[k]))
+                for k in range(args.first, args.first + args.cases)]
+    if args.family == 'full_car':
+        from mr_suspension.truth.full_car import FULL_CAR_EFFECTS
+        kinds = [[]] * 2 + [[e] for e in FULL_CAR_EFFECTS]
+        return [(args.seed0 + k, kinds[k % len(kinds)])
                 for k in range(args.first, args.first + args.cases)]
     import numpy as np
     from mr_suspension.truth.vehicle import EFFECTS
@@ -128,6 +154,8 @@ def _one(job):
     t0 = time.time()
     if family == 'rig':
         out = _rig_outcome(seed, tuple(spec), duration, perturb)
+    elif family == 'full_car':
+        out = _full_car_outcome(seed, spec, duration, perturb)
     else:
         out = _car_outcome(seed, spec, duration, perturb)
     out['seed'] = seed
@@ -168,11 +196,12 @@ def compare(base, other):
 def main(argv=None):
     """Run the baseline and each variant in processes of their own; print the changes."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument('--family', choices=('rig', 'car'), default='rig')
+    ap.add_argument('--family', choices=('rig', 'car', 'full_car'), default='rig')
     ap.add_argument('--cases', type=int, default=300)
     ap.add_argument('--first', type=int, default=0, help='index of the first record')
     ap.add_argument('--seed', type=int, default=0, help='rig benchmark seed set')
-    ap.add_argument('--seed0', type=int, default=1000, help='car benchmark first seed')
+    ap.add_argument('--seed0', type=int, default=1000,
+                    help='car benchmark first seed (full car: bench_diagnose_full_car uses 5000)')
     ap.add_argument('--duration', type=float, default=None,
                     help='record length [s] (default: 12 rig, 60 car)')
     ap.add_argument('--jobs', type=int, default=1, help='records diagnosed at once')
@@ -181,7 +210,7 @@ def main(argv=None):
     ap.add_argument('--out', default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.duration is None:
-        args.duration = 12.0 if args.family == 'rig' else 60.0
+        args.duration = {'rig': 12.0, 'car': 60.0, 'full_car': 30.0}[args.family]
     if args.variant is not None:
         run_variant(args)
         return 0

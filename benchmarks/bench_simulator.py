@@ -53,7 +53,8 @@ def main():
     """Run the benchmark and print its figures."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--duration', type=float, default=10.0, help='simulated seconds per corner')
-    ap.add_argument('--corners', type=int, default=2048, help='corners in the batch')
+    ap.add_argument('--corners', type=int, default=2048,
+                    help='corners in the batch (0: skip the quarter-car batch)')
     ap.add_argument('--cars', type=int, default=1024, help='full cars in the batch (0: skip)')
     ap.add_argument('--repeats', type=int, default=3)
     ap.add_argument('--laws', nargs='*', default=None, help='controller sets (default: all)')
@@ -76,6 +77,16 @@ def main():
         print(f'  {label:<26s} {args.duration / el:10.0f} x real time '
               f'({el / road.n_steps * 1e9:6.0f} ns/step)')
 
+    quarter = {}
+    if args.corners > 0:
+        quarter_car(args, car, driver, damper, road, quarter)
+    if args.cars > 0:
+        full_car(args, quarter)
+    print(f'load average after: {load()}')
+
+
+def quarter_car(args, car, driver, damper, road, quarter):
+    """Print the quarter car's batch throughput per law and the reference kernels."""
     n = args.corners
     roads = [rd.iso8608('C', speed=20.0, duration=args.duration, seed=s) for s in range(4)]
     idx = np.arange(n) % 4
@@ -85,7 +96,6 @@ def main():
     print(f'  {"law":<16s} {"kernel":<7s} {"batch corner-s/s":>17s} {"(range)":>17s} '
           f'{"per CPU-s":>10s} {"one corner":>11s} {"ratio":>6s}')
     worst = np.inf
-    quarter = {}
     for law in args.laws or config.available('controllers'):
         ctrl = config.load_controller(law).with_plant(car, damper, driver)
         cfg = CornerConfig(car=car, damper=damper, driver=driver, controller=ctrl)
@@ -114,9 +124,6 @@ def main():
     walls, _ = timed(lambda: simulate_batch(sk, roads, idx[:n_gen], fast=False), 1)
     print(f'  generic kernel (on-off skyhook, one corner per thread, {n_gen} corners): '
           f'{n_gen * args.duration / walls.min():12,.0f} corner-s/s')
-    if args.cars > 0:
-        full_car(args, quarter)
-    print(f'load average after: {load()}')
 
 
 def full_car(args, quarter):
