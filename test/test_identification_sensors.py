@@ -587,3 +587,19 @@ def test_directional_velocity_without_noise_or_samples_is_the_ladder():
     short = v[:4] + 1e-3
     est, share = sensors.directional_velocity(short, dt, 60.0, np.full(4, 1e-3))
     assert np.all(np.isfinite(est)) and not share.any()
+
+
+def test_a_rail_is_found_alike_under_round_off():
+    """Samples at a rail that differ by round-off (1e-9 relative) are still at the rail."""
+    from mr_suspension.identification.vehicle_data import rail_pileup
+    rng = np.random.default_rng(4)
+    t = np.arange(20000) * 1e-3
+    x = 18.0 * np.sin(2 * np.pi * 1.3 * t) + rng.normal(0.0, 0.05, t.size)
+    x = np.clip(x, -15.0, 15.0)
+    wobble = x * (1.0 + 1e-9 * rng.uniform(-1.0, 1.0, x.size))
+    for check in (lambda y: sensors.clipping('a', y), lambda y: rail_pileup('a', y)):
+        m0, f0 = check(x)
+        m1, f1 = check(wobble)
+        assert f0 is not None and f1 is not None
+        np.testing.assert_array_equal(m0, m1)
+        assert (~m0).sum() == np.sum(np.abs(x) == 15.0)

@@ -1735,6 +1735,12 @@ def outer_mse(ds, *fits):
     return float(np.mean(np.concatenate(err))) if err else float('nan')
 
 
+def _mse(errors):
+    """Mean squared error over error arrays (those of :func:`outer_errors`)."""
+    return float(np.mean(np.concatenate([e ** 2 for e in errors]))) if errors \
+        else float('nan')
+
+
 def _runs(m):
     """``(start, stop)`` of the contiguous True runs of a boolean array."""
     d = np.diff(np.concatenate(([0], m.astype(np.int8), [0])))
@@ -1762,11 +1768,6 @@ def outer_errors(ds, fits):
                 err.append(e[a:b])
                 force.append(r.force[a:b])
     return err, force
-
-
-def outer_score(ds, fits):
-    """``forward.Score`` of ``predict_force(fits)`` on the outer blocks, one block per run."""
-    return forward.block_score(*outer_errors(ds, fits))
 
 
 def kept_back_errors(held, fits):
@@ -2159,12 +2160,11 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     base_exact = exact_heldout(ds, base)
     final_exact = exact_heldout(ds, final) if chosen else base_exact
     heldout = {}
-    if outer and ds.outer.any():
-        heldout = {'baseline_mse': outer_mse(ds, base),
-                   'extended_mse': outer_mse(ds, final) if chosen else None,
+    if outer and ds.outer.any():  # each model simulated once over the outer blocks
+        err_base = outer_errors(ds, (base,))
+        err_final = outer_errors(ds, (final,)) if chosen else err_base
+        heldout = {'baseline_mse': _mse(err_base[0]), 'extended_mse': _mse(err_final[0]),
                    'std': float(np.std(ds.force[ds.outer])), 'source': 'outer blocks'}
-        if heldout['extended_mse'] is None:
-            heldout['extended_mse'] = heldout['baseline_mse']
         if hedge is not None:
             heldout['hedged_mse'] = outer_mse(ds, final if chosen else base, hedge)
     else:
@@ -2182,11 +2182,9 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     ref_fit = learned_reference(ds, (final if chosen else base,))
     ref_errs = {}
     if outer and ds.outer.any():
-        scores['outer'] = (outer_score(ds, (base,)),
-                           outer_score(ds, (final if chosen else base,)))
+        scores['outer'] = (forward.block_score(*err_base), forward.block_score(*err_final))
         if ref_fit is not None:
-            ref_errs['outer'] = (outer_errors(ds, (final if chosen else base,)),
-                                 outer_errors(ds, ref_fit))
+            ref_errs['outer'] = (err_final, outer_errors(ds, ref_fit))
         # Scored: now the delivered models take the outer blocks too.
         ds_all = engine.Dataset(full, n_folds=n_folds, outer=False)
         base = all_data(ds_all, base)

@@ -283,6 +283,23 @@ def _held_runs(x, consistent=None, suspects=()):
     return out
 
 
+RAIL_TOL = 1e-7  # relative to the larger extreme: far below any sensor's resolution
+
+
+def snap_rails(x, hi, lo):
+    """Return ``x`` with the values within ``RAIL_TOL`` of its extremes put on them.
+
+    A rail holds one value; a difference far below any sensor's resolution (round-off of a
+    unit conversion or a filter) must not decide whether a sample is at it.
+    """
+    tol = RAIL_TOL * max(abs(hi), abs(lo))
+    out = np.array(x, dtype=float)
+    with np.errstate(invalid='ignore'):
+        out[out >= hi - tol] = hi
+        out[out <= lo + tol] = lo
+    return out
+
+
 def clipping(name, x, consistent=None):
     """Mask samples at a clipped extreme (max or min held longer than noise and dynamics allow).
 
@@ -297,6 +314,7 @@ def clipping(name, x, consistent=None):
     hi, lo = float(np.max(x[ok])), float(np.min(x[ok]))
     if hi == lo:
         return mask, None        # a constant channel is judged by the caller, not masked
+    x = snap_rails(x, hi, lo)
     held = _held_runs(x, consistent, suspects=(hi, lo))
     rails = sorted({v for _, _, v in held if v in (hi, lo)})
     if not rails:

@@ -344,6 +344,7 @@ def rail_pileup(name, x, n_min=5, ratio=5.0):
     """
     mask = np.ones(x.size, dtype=bool)
     rails = []
+    x = sensors.snap_rails(x, float(np.max(x)), float(np.min(x)))
     for side in (1.0, -1.0):
         v = side * x
         top = float(np.max(v))
