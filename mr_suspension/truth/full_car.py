@@ -50,7 +50,7 @@ from pathlib import Path
 from numba import njit
 import numpy as np
 
-from mr_suspension.core import car_road as cr
+import mr_suspension.core.car_road as cr
 from mr_suspension.truth import vehicle as tv
 from mr_suspension.truth.vehicle import (P_CT, P_DEAD, P_FC, P_FFALL, P_FRISE, P_G, P_IMAX,
                                          P_KT, P_MNOM, P_MU, P_TFALL, P_TRISE, P_XFALL,
