@@ -139,43 +139,8 @@ def test_short_or_missing_files(tmp_path):
 
 
 def _write_bag(path, cols, namespaces):
-    from rosbags.rosbag2 import Writer
-    from rosbags.typesys import get_typestore, Stores
-
-    ts = get_typestore(Stores.LATEST)
-    imu, js = ts.types['sensor_msgs/msg/Imu'], ts.types['sensor_msgs/msg/JointState']
-    f64, hdr = ts.types['std_msgs/msg/Float64'], ts.types['std_msgs/msg/Header']
-    stamp_t, vec = ts.types['builtin_interfaces/msg/Time'], ts.types['geometry_msgs/msg/Vector3']
-    quat = ts.types['geometry_msgs/msg/Quaternion']
-    cov = np.zeros(9)
-    with Writer(path, version=9) as w:
-        conns = {}
-        for ns in namespaces:
-            for name, ty in (('imu/body', imu), ('imu/wheel', imu), ('stroke', js),
-                             ('current_command', f64), ('coil_current', f64)):
-                conns[f'{ns}/{name}'] = w.add_connection(f'{ns}/{name}', ty.__msgtype__,
-                                                         typestore=ts)
-        for k in range(cols['time'].size):
-            ns_t = int(1e9 + cols['time'][k] * 1e9)
-            h = hdr(stamp=stamp_t(sec=ns_t // 10 ** 9, nanosec=ns_t % 10 ** 9), frame_id='b')
-            for ns in namespaces:
-                def acc(a):
-                    return imu(header=h, orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0),
-                               orientation_covariance=cov, angular_velocity=vec(x=0.0, y=0.0,
-                                                                                z=0.0),
-                               angular_velocity_covariance=cov,
-                               linear_acceleration=vec(x=0.0, y=0.0, z=float(a)),
-                               linear_acceleration_covariance=cov)
-                msgs = ((f'{ns}/imu/body', acc(cols['body_acc'][k]), imu),
-                        (f'{ns}/imu/wheel', acc(cols['wheel_acc'][k]), imu),
-                        (f'{ns}/stroke', js(header=h, name=['suspension_stroke'],
-                                            position=np.array([cols['stroke'][k]]),
-                                            velocity=np.array([]), effort=np.array([])), js),
-                        (f'{ns}/current_command', f64(data=float(cols['current_command'][k])),
-                         f64),
-                        (f'{ns}/coil_current', f64(data=float(cols['coil_current'][k])), f64))
-                for name, msg, ty in msgs:
-                    w.write(conns[name], ns_t, ts.serialize_cdr(msg, ty.__msgtype__))
+    from mr_suspension.truth.full_car import write_contract_bag
+    write_contract_bag(path, cols['time'], {ns: cols for ns in namespaces})
 
 
 def test_bag_gives_the_csv_result(tmp_path):

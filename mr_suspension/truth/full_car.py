@@ -665,13 +665,24 @@ def _corner_clean(clean, i):
 def write_bag(case, path):
     """Write ``case`` as a rosbag2 (version 9, sqlite3) of the contract topics; return the path.
 
-    Per corner namespace (``/front_left/...``): ``imu/body`` and ``imu/wheel``
-    (``sensor_msgs/Imu``, ``linear_acceleration.z`` = the column), ``stroke``
-    (``sensor_msgs/JointState``, joint ``suspension_stroke``), ``current_command`` and, if
-    measured, ``coil_current`` (``std_msgs/Float64``); ``/body/imu`` (``sensor_msgs/Imu``,
+    The four corners under their namespaces and the body IMU: :func:`write_contract_bag`.
+    """
+    return write_contract_bag(path, case.body['time'],
+                              {name: case.columns[name] for name in CORNERS}, case.body)
+
+
+def write_contract_bag(path, time, corners, body=None):
+    """Write corner columns as a rosbag2 (version 9, sqlite3) of the contract topics.
+
+    ``corners``: namespace -> columns (``body_acc``, ``wheel_acc``, ``stroke``,
+    ``current_command``, optional ``coil_current``). Per namespace (``/front_left/...``):
+    ``imu/body`` and ``imu/wheel`` (``sensor_msgs/Imu``, ``linear_acceleration.z`` = the
+    column), ``stroke`` (``sensor_msgs/JointState``, joint ``suspension_stroke``),
+    ``current_command`` and ``coil_current`` (``std_msgs/Float64``); with ``body``
+    (``pitch_rate``, ``roll_rate``, ``acc_z``) also ``/body/imu`` (``sensor_msgs/Imu``,
     ``angular_velocity.y`` the pitch rate, ``.x`` the roll rate, ``linear_acceleration.z`` the
     vertical specific force). Header stamps ``1 s + t``; unknown Imu fields have covariance[0]
-    = -1 (the contract's convention).
+    = -1 (the contract's convention). Returns the path.
     """
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import get_typestore, Stores
@@ -688,7 +699,7 @@ def write_bag(case, path):
     ident = quat(x=0.0, y=0.0, z=0.0, w=1.0)
     zero = vec(x=0.0, y=0.0, z=0.0)
     empty = np.array([], dtype=float)
-    time = np.asarray(case.body['time'], dtype=float)
+    time = np.asarray(time, dtype=float)
     stamps = np.rint(1e9 + time * 1e9).astype(np.int64).tolist()
     secs = [s // 10 ** 9 for s in stamps]
     nsecs = [s % 10 ** 9 for s in stamps]
@@ -702,19 +713,20 @@ def write_bag(case, path):
 
     with Writer(path, version=9) as w:
         streams = []
-        for name in CORNERS:
-            cols = case.columns[name]
+        for name, cols in corners.items():
+            ns = name.strip('/')
             topics = [('imu/body', 'body_acc', imu), ('imu/wheel', 'wheel_acc', imu),
                       ('stroke', 'stroke', js), ('current_command', 'current_command', f64)]
             if 'coil_current' in cols:
                 topics.append(('coil_current', 'coil_current', f64))
             for rel, col, ty in topics:
-                conn = w.add_connection(f'/{name}/{rel}', ty.__msgtype__, typestore=ts)
+                conn = w.add_connection(f'/{ns}/{rel}', ty.__msgtype__, typestore=ts)
                 streams.append((conn, rel, ty, np.asarray(cols[col], dtype=float).tolist()))
-        body_conn = w.add_connection('/body/imu', imu.__msgtype__, typestore=ts)
-        pitch = np.asarray(case.body['pitch_rate'], dtype=float).tolist()
-        roll = np.asarray(case.body['roll_rate'], dtype=float).tolist()
-        acc_z = np.asarray(case.body['acc_z'], dtype=float).tolist()
+        if body is not None:
+            body_conn = w.add_connection('/body/imu', imu.__msgtype__, typestore=ts)
+            pitch = np.asarray(body['pitch_rate'], dtype=float).tolist()
+            roll = np.asarray(body['roll_rate'], dtype=float).tolist()
+            acc_z = np.asarray(body['acc_z'], dtype=float).tolist()
         frames = {'imu/body': 'body_imu', 'imu/wheel': 'wheel_imu', 'stroke': 'suspension'}
         headers = {f: [None] * len(stamps) for f in (*frames.values(), 'body_imu_cg')}
         for f, hs in headers.items():
@@ -730,7 +742,8 @@ def write_bag(case, path):
                 else:
                     msg = f64(data=vals[k])
                 w.write(conn, ns_t, ts.serialize_cdr(msg, ty.__msgtype__))
-            msg = imu_msg(headers['body_imu_cg'][k], acc_z[k],
-                          vec(x=roll[k], y=pitch[k], z=0.0))
-            w.write(body_conn, ns_t, ts.serialize_cdr(msg, imu.__msgtype__))
+            if body is not None:
+                msg = imu_msg(headers['body_imu_cg'][k], acc_z[k],
+                              vec(x=roll[k], y=pitch[k], z=0.0))
+                w.write(body_conn, ns_t, ts.serialize_cdr(msg, imu.__msgtype__))
     return path
