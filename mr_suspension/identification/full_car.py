@@ -38,7 +38,6 @@ from mr_suspension.identification import engine, vehicle
 from mr_suspension.identification.data import DataError
 
 MAX_PASSES = 3
-SEARCH_STRIDE_HZ = vehicle.SEARCH_RATE  # rows of the joint baseline
 
 
 def coupling_matrix(car):
@@ -104,7 +103,10 @@ class FullCarDiagnosis:
 
     @property
     def verdict(self):
-        """``named`` if some corner names a cause, else the worst corner verdict."""
+        """The car's verdict: ``ambiguous``, ``named``, ``partly_explained`` or ``none``.
+
+        The first of these that some corner reports.
+        """
         verdicts = [r.verdict for r in self.corners.values()]
         for v in ('ambiguous', 'named', 'partly_explained'):
             if v in verdicts:
@@ -137,17 +139,14 @@ def _aligned(corner_records):
     return out
 
 
-def _forces(Ps, nom, fits):
-    """Each corner's force on the body without its offset (4 x n) [N] from its fit."""
-    out = []
-    for P, fit, m in zip(Ps, fits, nom):
-        if 'top_mount' in fit.effects:
-            vehicle.mount_refresh(P, fit)
-        X, names = vehicle.columns(P, fit.effects, fit.eta)
-        th = np.array(fit.theta, dtype=float)
-        th[names.index('offset')] = 0.0
-        out.append(m * (X @ th + P.stop))
-    return np.stack(out)
+def _force(P, fit, m):
+    """Return a corner's force on the body without its offset [N] from its fit (mass ``m``)."""
+    if 'top_mount' in fit.effects:
+        vehicle.mount_refresh(P, fit)
+    X, names = vehicle.columns(P, fit.effects, fit.eta)
+    th = np.array(fit.theta, dtype=float)
+    th[names.index('offset')] = 0.0
+    return m * (X @ th + P.stop)
 
 
 def joint_baseline(Ps, a_mat, masses, arb):
@@ -157,13 +156,7 @@ def joint_baseline(Ps, a_mat, masses, arb):
     rows every corner uses, ``X_k`` the baseline regressors of corner ``k`` (spring and
     damper, acceleration per unit effective mass), ``b_j`` one offset per accelerometer.
     """
-    n = Ps[0].n
-    rows = np.all([P.fold >= 0 for P in Ps], axis=0)
-    q = max(1, int(round(1.0 / (SEARCH_STRIDE_HZ * Ps[0].dt))))
-    sel = np.zeros(n, dtype=bool)
-    sel[::q] = True
-    sel &= rows
-    inner = sel & (Ps[0].fold != engine.OUTER)
+    inner = np.all([P.search_rows for P in Ps], axis=0) & (Ps[0].fold != engine.OUTER)
     xs = []
     for P in Ps:
         X, names = vehicle.columns(P, (), vehicle.base_eta(P.nominal, P.coil))
@@ -226,7 +219,7 @@ def run(corner_records, nominal=None, effects=vehicle.ALL_EFFECTS, progress=None
             res, _, preds = vehicle.run(None, effects=effects, prepared=Ps[i])
             context[i] = others(i)
             results[i], outs[i], fitted[i] = res, preds, tuple(res.causes)
-            forces[i] = _forces([Ps[i]], [masses[i]], [res.final])[0]
+            forces[i] = _force(Ps[i], res.final, masses[i])
             done[CORNERS[i]] = list(res.causes)
             tick(f'{CORNERS[i]} pass {len(passes) + 1}')
         if not done:
