@@ -7,11 +7,12 @@ import json
 
 import numpy as np
 import pytest
+from truthcases import write_full_car_bag
 
 from mr_suspension.identification import full_car, vehicle, vehicle_data
 from mr_suspension.identification.cli import main
 from mr_suspension.identification.data import DataError
-from mr_suspension.truth.full_car import make_full_car_case, write_bag
+from mr_suspension.truth.full_car import make_full_car_case
 
 NOMINAL = full_car.CarNominal.load()
 
@@ -98,7 +99,7 @@ def test_cli_on_a_full_car_bag(tmp_path, capsys):
     case = make_full_car_case(75, effects=('direction_asymmetry',), corner='front_left',
                               duration=12.0, strength=0.8)
     bag = tmp_path / 'car'
-    write_bag(case, bag)
+    write_full_car_bag(case, bag)
     assert main(['diagnose-vehicle', str(bag), '--out', str(tmp_path / 'x'), '--quiet']) != 0
     assert '--car' in capsys.readouterr().err
     assert main(['diagnose-vehicle', str(bag), '--car', 'lisa_full_car', '--namespace',

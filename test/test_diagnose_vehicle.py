@@ -139,7 +139,7 @@ def test_short_or_missing_files(tmp_path):
 
 
 def _write_bag(path, cols, namespaces):
-    from mr_suspension.truth.full_car import write_contract_bag
+    from truthcases import write_contract_bag
     write_contract_bag(path, cols['time'], {ns: cols for ns in namespaces})
 
 

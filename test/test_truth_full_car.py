@@ -4,6 +4,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from truthcases import write_full_car_bag
 
 from mr_suspension.core import car_road as cr
 from mr_suspension.truth import full_car as F
@@ -241,7 +242,7 @@ def test_bag_round_trip(tmp_path):
 
     case = F.make_full_car_case(11, effects=('current_lag',), corner='rear_right',
                                 duration=5.5, road_class='C')
-    bag = F.write_bag(case, tmp_path / 'bag')
+    bag = write_full_car_bag(case, tmp_path / 'bag')
     (rec,) = vehicle_data.load([bag], namespace='rear_right')
     cols = case.columns['rear_right']
     assert rec.n == cols['time'].size
