@@ -13,9 +13,9 @@ import time
 import numpy as np
 
 from mr_suspension.control import laws as L
-from mr_suspension.core import config as cfg
 from mr_suspension.core import road as rd
-from mr_suspension.core.simulator import CornerConfig, simulate
+from mr_suspension.sim import config as cfg
+from mr_suspension.sim.simulator import CornerConfig, simulate
 
 
 def python_call_times(ctrl, calls, rng):

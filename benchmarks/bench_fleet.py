@@ -22,9 +22,9 @@ import tempfile
 import time
 
 from mr_suspension import parallel
-from mr_suspension.core.config import load_driver
 from mr_suspension.identification import data as dataio
 from mr_suspension.identification import engine, fleet
+from mr_suspension.sim.config import load_driver
 from mr_suspension.truth import cases
 
 EFFECTS = ((), ('series_stiffness',), ('current_lag',), ('current_saturation',),

@@ -5,7 +5,7 @@ at 1 kHz; then for every control law of ``config/controllers`` the batch through
 corner-seconds per second (estimation, Wonder Box, fluid lag and damper in the loop) next to
 the one-corner simulator's figure for the same law (its real-time factor is its corner-s/s);
 then the affine kernel (constant current) and the generic kernel for reference; then the full
-car (7 DOF, :mod:`~mr_suspension.core.full_car_batch`): for every law and the modal sky-hook the
+car (7 DOF, :mod:`~mr_suspension.sim.full_car_batch`): for every law and the modal sky-hook the
 batch throughput in full-car seconds per second (four corners, each with its law, estimation,
 Wonder Box, fluid lag and MR damper, on a two-track road) beside the quarter car's figure.
 
@@ -27,9 +27,10 @@ import numpy as np
 
 from mr_suspension.control.laws import ControllerParams
 from mr_suspension.control.modal import ModalParams
-from mr_suspension.core import car_road as cr, config, full_car_sim as fs, road as rd
+from mr_suspension.core import car_road as cr, road as rd
 from mr_suspension.core.paramsets import load_full_car
-from mr_suspension.core.simulator import CornerConfig, kernel_of, simulate, simulate_batch
+from mr_suspension.sim import config, full_car_sim as fs
+from mr_suspension.sim.simulator import CornerConfig, kernel_of, simulate, simulate_batch
 
 
 def timed(fn, repeats):

@@ -14,11 +14,11 @@ import tempfile
 import time
 import warnings
 
-from mr_suspension.core.config import load_driver
 from mr_suspension.identification import cli as diag_cli
 from mr_suspension.identification import data as dataio
 from mr_suspension.identification import engine
 from mr_suspension.identification.pipeline import diagnose_to_dir
+from mr_suspension.sim.config import load_driver
 
 
 def _row(name, base, ext, ref):

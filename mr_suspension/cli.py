@@ -9,9 +9,9 @@ import time
 
 from mr_suspension.cli_common import output_dir, road_spec_from_args, run_command
 from mr_suspension.core import road as roads
-from mr_suspension.core.corner import build_corner
 from mr_suspension.core.metrics import ride_metrics
-from mr_suspension.core.simulator import simulate
+from mr_suspension.sim.corner import build_corner
+from mr_suspension.sim.simulator import simulate
 
 # Commands of the plugins that need more than numpy/scipy (shown as unavailable if those fail).
 PLUGIN_COMMANDS = {'mr_suspension.nodes.cli': ('nodes',)}
@@ -45,7 +45,7 @@ def _road_from_args(args, dt):
 def corner_from_args(args, controller=None):
     """Build a :class:`CornerConfig` from the common ``--vehicle/--damper/...`` options.
 
-    The one builder of the package (:func:`mr_suspension.core.corner.build_corner`): the
+    The one builder of the package (:func:`mr_suspension.sim.corner.build_corner`): the
     controller gets this corner's vehicle, damper (inverse model) and driver range, as in the
     node set and the evaluation.
     """

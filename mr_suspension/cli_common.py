@@ -41,7 +41,7 @@ def road_spec_from_args(args):
 
 
 def add_plant_arguments(parser):
-    """Add ``--vehicle``, ``--damper`` and ``--driver`` (the corner of ``core.corner``)."""
+    """Add ``--vehicle``, ``--damper`` and ``--driver`` (the corner of ``sim.corner``)."""
     parser.add_argument('--vehicle', default='city_car',
                         help='config/vehicles name or YAML path (default: %(default)s)')
     parser.add_argument('--damper', default='rd1005_bingham',

@@ -10,7 +10,7 @@ import numpy as np  # noqa: E402
 def time_histories(results, path, title=''):
     """Plot body acceleration, stroke, dynamic tyre load and currents of labelled runs.
 
-    ``results`` maps a label to a :class:`~mr_suspension.core.simulator.SimResult`.
+    ``results`` maps a label to a :class:`~mr_suspension.sim.simulator.SimResult`.
     """
     fig, axes = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
     for label, res in results.items():

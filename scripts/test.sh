@@ -35,12 +35,12 @@ import sys
 from pathlib import Path
 
 import mr_suspension
-from mr_suspension.core import config
+from mr_suspension.core import paramsets
 from mr_suspension.nodes import contract
 
 venv = Path(sys.argv[1]).resolve()
 used = {'package': Path(mr_suspension.__file__).resolve(),
-        'config': config.config_dir().resolve(), 'msg_defs': contract.yaml_path().resolve()}
+        'config': paramsets.config_dir().resolve(), 'msg_defs': contract.yaml_path().resolve()}
 outside = {k: str(v) for k, v in used.items() if venv not in v.parents}
 assert not outside, f'installed copy not used: {outside}'
 print(f'installed copy OK: {used["package"].parent}, data in {used["config"].parent}')

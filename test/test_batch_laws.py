@@ -1,7 +1,7 @@
 """Batch kernels against the one-corner simulator: every control law, driver and damper law.
 
-The exact kernel (:func:`mr_suspension.core.batch.run_exact`) must give what
-:func:`~mr_suspension.core.simulator.simulate` gives corner by corner: metrics and time
+The exact kernel (:func:`mr_suspension.sim.batch.run_exact`) must give what
+:func:`~mr_suspension.sim.simulator.simulate` gives corner by corner: metrics and time
 histories to a relative 1e-9 (it runs the same operations in the same order, so in practice
 bit for bit).
 """
@@ -12,10 +12,11 @@ from scipy import signal
 
 from mr_suspension.control import inverse as inv
 from mr_suspension.control.laws import ControllerParams
-from mr_suspension.core import batch, config, road as rd
+from mr_suspension.core import road as rd
 from mr_suspension.core.metrics import wk_sos
-from mr_suspension.core.simulator import (BATCH_METRICS, CHANNELS, CornerConfig, kernel_of,
-                                          simulate, simulate_batch)
+from mr_suspension.sim import batch, config
+from mr_suspension.sim.simulator import (BATCH_METRICS, CHANNELS, CornerConfig, kernel_of,
+                                         simulate, simulate_batch)
 
 RTOL = 1e-9
 CAR = config.load_vehicle('city_car')

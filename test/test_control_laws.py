@@ -7,9 +7,9 @@ import pytest
 
 from mr_suspension.control import laws as L
 from mr_suspension.control.laws import ControllerParams
-from mr_suspension.core import config as cfg
 from mr_suspension.core import road as rd
-from mr_suspension.core.simulator import CornerConfig, simulate
+from mr_suspension.sim import config as cfg
+from mr_suspension.sim.simulator import CornerConfig, simulate
 
 CAR = cfg.load_vehicle('seed003_passenger')
 DAMPER = cfg.load_damper('rd1005_bingham')

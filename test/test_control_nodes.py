@@ -10,10 +10,10 @@ round-off for every law (laws with internal estimator state included).
 import pytest
 
 from mr_suspension.control.laws import LAW_IDS
-from mr_suspension.core import config as cfg
-from mr_suspension.core.stepper import ControllerStepper
 from mr_suspension.nodes.launch import agreement, corner_config, offline_summary
 from mr_suspension.nodes.testing import run_in_process
+from mr_suspension.sim import config as cfg
+from mr_suspension.sim.stepper import ControllerStepper
 
 ROAD = '{type: bump, height: 0.05, length: 2.0, speed: 10.0}'
 DURATION = 1.0

@@ -7,10 +7,10 @@ from scipy import linalg
 from mr_suspension.control.laws import ControllerParams
 from mr_suspension.control.optimal import (lqr_gain, open_loop_cost, quarter_car_matrices,
                                            semi_active_bound)
-from mr_suspension.core import config as cfg
 from mr_suspension.core import road as rd
 from mr_suspension.core.metrics import ride_metrics, wk_sos
-from mr_suspension.core.simulator import CornerConfig, simulate
+from mr_suspension.sim import config as cfg
+from mr_suspension.sim.simulator import CornerConfig, simulate
 
 CAR = cfg.load_vehicle('seed003_passenger')
 PLANT = (CAR.m_s, CAR.m_u, CAR.k_s, CAR.k_t, CAR.c_t)

@@ -5,13 +5,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mr_suspension.core import config as cfgmod, road as rd
-from mr_suspension.core.corner import build_corner
+from mr_suspension.core import road as rd
 from mr_suspension.core.quarter_car import (N_STATE, plant_step, strut_extra,
                                             strut_motion, TOP_MOUNT_MASS_FRACTION, VS, VT, VU,
                                             ZS, ZT, ZU)
-from mr_suspension.core.simulator import kernel_of, simulate, simulate_batch
-from mr_suspension.core.stepper import ActuatorStepper, PlantStepper
+from mr_suspension.sim import config as cfgmod
+from mr_suspension.sim.corner import build_corner
+from mr_suspension.sim.simulator import kernel_of, simulate, simulate_batch
+from mr_suspension.sim.stepper import ActuatorStepper, PlantStepper
 
 CITY = cfgmod.load_vehicle('city_car')
 

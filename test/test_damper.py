@@ -5,8 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from mr_suspension.core import config, damper as dmp
+from mr_suspension.core import damper as dmp
 from mr_suspension.core.fastmath import fast_tanh
+from mr_suspension.sim import config
 
 RNG = np.random.default_rng(20261122)
 

@@ -26,10 +26,10 @@ def _run(case):
 
 
 def test_effect_free_cli_writes_report_and_a_corner_simulate_accepts(tmp_path):
-    from mr_suspension.core.corner import build_corner
     from mr_suspension.core.road import bump
-    from mr_suspension.core.simulator import simulate
     from mr_suspension.identification.cli import main
+    from mr_suspension.sim.corner import build_corner
+    from mr_suspension.sim.simulator import simulate
 
     path = _case(1000).write_csv(tmp_path / 'car.csv')
     out = tmp_path / 'out'
@@ -52,8 +52,14 @@ def test_effect_free_cli_writes_report_and_a_corner_simulate_accepts(tmp_path):
 def test_hidden_effect_is_named_first_with_its_parameter(effect, seed):
     case = _case(seed, (effect,))
     assert case.contributions[effect] > 3.0
-    res = _run(case)
+    est = vehicle.VehicleDiagnosis(NOMINAL)
+    res = est.fit([vehicle_data.build('case', case.columns)])
     assert res.causes and res.causes[0] == effect
+    # The named effect carries over to a stretch of the same car the fit never saw.
+    unseen = [vehicle_data.build('unseen', case.unseen().columns)]
+    assert est.score(unseen) < est.score(unseen, 'baseline')
+    pred = est.predict(unseen)
+    assert pred.size > 0.9 * unseen[0].n and np.all(np.isfinite(pred))
     tr = case.truth
     if effect == 'spring_nonlinearity':
         # truth: k_s x_p sinh(x/x_p) = k_s x + k_s x^3 / (6 x_p^2) + ...
@@ -128,6 +134,18 @@ def test_bad_inputs_are_clear_errors(change, message):
         vehicle_data.build('bad', cols)
 
 
+def test_the_estimator_refuses_what_it_cannot_answer():
+    with pytest.raises(ValueError, match='unknown effect'):
+        vehicle.VehicleDiagnosis(NOMINAL, effects=('warp_drive',))
+    est = vehicle.VehicleDiagnosis(NOMINAL)
+    rec = vehicle_data.build('case', _case(1000).columns)
+    with pytest.raises(RuntimeError, match='fit'):
+        est.predict([rec])
+    est.result_ = _run(_case(1000))
+    with pytest.raises(ValueError, match='extended'):
+        est.score([rec], model='nominal')
+
+
 def test_short_or_missing_files(tmp_path):
     with pytest.raises(DataError, match='need at least'):
         vehicle_data.build('short', {k: v[:500] for k, v in _cols().items()})
@@ -173,8 +191,8 @@ def test_node_set_bag_with_a_hidden_cubic_spring(tmp_path):
     baseline's zero-current yield force: the same shape, so it is not a testable cause there.)
     """
     from mr_suspension.cli import main as cli_main
-    from mr_suspension.core import config as cfgmod
     from mr_suspension.identification.cli import main
+    from mr_suspension.sim import config as cfgmod
     car = tmp_path / 'hidden.yaml'
     car.write_text((cfgmod.config_dir() / 'vehicles' / 'city_car.yaml').read_text()
                    + 'k_s3: 20000000.0\n')

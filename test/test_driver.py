@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from mr_suspension.core import config
 from mr_suspension.core import driver as drv
 from mr_suspension.core.driver import (command_voltage, driver_series, driver_state,
                                        driver_step, driver_step_voltage, DriverParams, prepare,
                                        static_current)
+from mr_suspension.sim import config
 
 DT = 1e-4
 

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from mr_suspension.core import config as cfg
 from mr_suspension.core.quarter_car import QuarterCarParams
 from mr_suspension.evaluation import cli, runner, scenarios as scn, tables
+from mr_suspension.sim import config as cfg
 
 
 def test_scenario_groups_and_names():
@@ -30,7 +30,7 @@ def test_linear_passive_run_matches_closed_form_response():
     # closed-form quarter car (seed 001 eqs. 2-3 with tyre damping).
     from mr_suspension.core.damper import LinearDamperParams
     from mr_suspension.core.metrics import sine_gain
-    from mr_suspension.core.simulator import simulate
+    from mr_suspension.sim.simulator import simulate
     car = cfg.load_vehicle('seed003_passenger')
     conf = runner.build_config('passive_0A', car, LinearDamperParams(c=1500.0), 'ideal')
     res = simulate(conf, scn.make('harmonic_1.5').road)
@@ -162,8 +162,8 @@ def test_cli_all_studies_light(tmp_path):
 def test_fitted_model_json_as_damper(tmp_path):
     """A damper fitted by diagnose (extended law) drives the plant and the inverse model."""
     from mr_suspension.core.extended import ExtendedDamperParams
-    from mr_suspension.core.simulator import simulate
     from mr_suspension.identification.model_io import model_dict, save_model
+    from mr_suspension.sim.simulator import simulate
     fitted = ExtendedDamperParams(c0=400.0, c1=900.0, fy0=30.0, fy1=450.0, i_sat=0.8,
                                   k_series=5e5)
     path = tmp_path / 'model.json'
@@ -176,3 +176,7 @@ def test_fitted_model_json_as_damper(tmp_path):
     assert np.all(np.isfinite(res.f_d)) and np.ptp(res.i_cmd) > 0.05
     with pytest.raises(ValueError):
         runner.load_damper(str(tmp_path / 'missing.json'))
+    other = tmp_path / 'other.json'
+    other.write_text('{"c0": 400.0}')
+    with pytest.raises(ValueError, match='not a fitted model'):
+        runner.load_damper(str(other))

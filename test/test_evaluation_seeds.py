@@ -67,7 +67,7 @@ def test_seed003_reproduction_and_improvements():
     same scaled road, must reach the seed's peak too (the simulator's passive response is the
     closed form's).
     """
-    from mr_suspension.core import config as cfg
+    from mr_suspension.sim import config as cfg
 
     car = cfg.load_vehicle('seed003_passenger')
     rows = seeds.seed003_reproduction()

@@ -10,12 +10,12 @@ from scipy.integrate import solve_ivp
 from mr_suspension.control.laws import ControllerParams
 from mr_suspension.control.modal import distribution, ModalParams
 from mr_suspension.core import car_road as cr
-from mr_suspension.core import config
 from mr_suspension.core import full_car as fc
-from mr_suspension.core import full_car_sim as fs
 from mr_suspension.core import road as rd
-from mr_suspension.core import simulator as sim
 from mr_suspension.core.damper import LinearDamperParams
+from mr_suspension.sim import config
+from mr_suspension.sim import full_car_sim as fs
+from mr_suspension.sim import simulator as sim
 
 # One worker compiles the full-car kernels (about a minute from a cold cache), not two.
 pytestmark = pytest.mark.xdist_group('full_car')

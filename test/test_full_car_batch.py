@@ -1,8 +1,8 @@
 """Full-car batch kernel against the one-car simulator: every law, body kind and fallback.
 
-:func:`mr_suspension.core.full_car_sim.simulate_batch` runs eligible cars on the vectorised
-kernel of :mod:`mr_suspension.core.full_car_batch`, which repeats
-:func:`~mr_suspension.core.full_car_sim.simulate`'s operations in the same order, so its
+:func:`mr_suspension.sim.full_car_sim.simulate_batch` runs eligible cars on the vectorised
+kernel of :mod:`mr_suspension.sim.full_car_batch`, which repeats
+:func:`~mr_suspension.sim.full_car_sim.simulate`'s operations in the same order, so its
 metrics must equal the recorded run's online sums (``FullCarResult.metrics``) to a relative
 1e-9 (in practice bit for bit: the laws that invert the damper model make the closed loop so
 sensitive that any other rounding would show at 1e-3).
@@ -15,10 +15,11 @@ import pytest
 
 from mr_suspension.control.laws import ControllerParams, LAW_IDS
 from mr_suspension.control.modal import ModalParams
-from mr_suspension.core import car_road as cr, config, full_car_batch as fcb
-from mr_suspension.core import full_car_sim as fs
+from mr_suspension.core import car_road as cr
 from mr_suspension.core import road as rd
 from mr_suspension.core.paramsets import load_full_car
+from mr_suspension.sim import config, full_car_batch as fcb
+from mr_suspension.sim import full_car_sim as fs
 
 # One worker compiles the full-car kernels (about a minute from a cold cache), not two.
 pytestmark = pytest.mark.xdist_group('full_car')

@@ -8,11 +8,11 @@ import pytest
 from mr_suspension.control.laws import ControllerParams
 from mr_suspension.control.modal import ModalParams
 from mr_suspension.core import car_road as cr
-from mr_suspension.core import config
-from mr_suspension.core import full_car_sim as fs
-from mr_suspension.core.full_car_stepper import FullCarPlantStepper, ModalControllerStepper
-from mr_suspension.core.simulator import CHANNELS
-from mr_suspension.core.stepper import ActuatorStepper, ControllerStepper
+from mr_suspension.sim import config
+from mr_suspension.sim import full_car_sim as fs
+from mr_suspension.sim.full_car_stepper import FullCarPlantStepper, ModalControllerStepper
+from mr_suspension.sim.simulator import CHANNELS
+from mr_suspension.sim.stepper import ActuatorStepper, ControllerStepper
 
 ROWS = ('a_s', 'a_u', 'stroke', 'stroke_rate', 'f_d', 'f_t', 'i_cmd', 'i_coil', 'z_s', 'v_s',
         'z_u', 'v_u')

@@ -9,10 +9,10 @@ import pytest
 import truthcases
 
 from mr_suspension import cli as main_cli
-from mr_suspension.core import config
 from mr_suspension.identification import cli, model_io
 from mr_suspension.identification.data import load_records, LoadOptions, parse_mapping
 from mr_suspension.nodes.common import corner_config
+from mr_suspension.sim import config
 
 
 def _write_csv(path, rec, mm_kn=False):

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import truthcases
 
-from mr_suspension.core.config import load_driver
 from mr_suspension.identification import data as dataio
 from mr_suspension.identification import diagnose, engine, model_io, noise, report, sensors
+from mr_suspension.sim.config import load_driver
 from mr_suspension.truth import cases
 
 

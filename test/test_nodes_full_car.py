@@ -13,8 +13,6 @@ from rclpy.exceptions import InvalidParameterValueException
 from sensor_msgs.msg import Imu
 
 from mr_suspension.control.modal import ModalParams
-from mr_suspension.core.full_car_stepper import FullCarPlantStepper, ModalControllerStepper
-from mr_suspension.core.stepper import ActuatorStepper, ControllerStepper
 from mr_suspension.nodes import cdr, common, contract as c
 from mr_suspension.nodes.full_car_plant import body_imu_template, FullCarPlantNode
 from mr_suspension.nodes.launch import agreement, full_car_offline, full_car_road
@@ -22,6 +20,8 @@ from mr_suspension.nodes.modal_controller import ModalControllerNode
 from mr_suspension.nodes.recorder import RecorderNode
 from mr_suspension.nodes.testing import full_car_figures, full_car_in_process, params
 from mr_suspension.nodes.testing import ros_context
+from mr_suspension.sim.full_car_stepper import FullCarPlantStepper, ModalControllerStepper
+from mr_suspension.sim.stepper import ActuatorStepper, ControllerStepper
 
 ROAD = '{type: bump, height: 0.04, length: 1.0, speed: 10.0, t0: 0.1, side: left}'
 ISO = '{type: iso8608, road_class: C, speed: 15.0, seed: 3}'
@@ -263,7 +263,7 @@ def test_bad_parameters_are_clear(tmp_path, node, overrides, error, match):
 
 
 def test_corner_vehicle_of_a_full_car():
-    from mr_suspension.core.corner import load_vehicle
+    from mr_suspension.sim.corner import load_vehicle
     cfg = common.full_car_config()
     for i, corner in enumerate(c.CORNERS):
         assert load_vehicle(common.corner_vehicle('lisa_full_car', corner)) == cfg.car.corner(i)

@@ -7,9 +7,9 @@ import yaml
 
 from mr_suspension.core import road as rd
 from mr_suspension.core.metrics import rms
-from mr_suspension.core.stepper import ActuatorStepper, ControllerStepper, PlantStepper
 from mr_suspension.nodes.launch import agreement, corner_config, offline_summary
 from mr_suspension.nodes.testing import run_in_process
+from mr_suspension.sim.stepper import ActuatorStepper, ControllerStepper, PlantStepper
 
 SCENARIOS = {
     'bump': '{type: bump, height: 0.05, length: 2.0, speed: 10.0}',

@@ -9,13 +9,13 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64
 
 from mr_suspension.core import road as rd
-from mr_suspension.core.stepper import ActuatorStepper, ControllerStepper, PlantStepper
 from mr_suspension.nodes import common, contract as c
 from mr_suspension.nodes.actuator import ActuatorNode
 from mr_suspension.nodes.controller import ControllerNode
 from mr_suspension.nodes.launch import corner_config
 from mr_suspension.nodes.plant import parse_road, PlantNode
 from mr_suspension.nodes.testing import add, params, ros_context
+from mr_suspension.sim.stepper import ActuatorStepper, ControllerStepper, PlantStepper
 
 
 class Harness(Node):

@@ -5,12 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from mr_suspension.core import config, road as rd
+from mr_suspension.core import road as rd
 from mr_suspension.core.damper import BinghamParams, LinearDamperParams
-from mr_suspension.core.frequency import sine_dwell_gains
 from mr_suspension.core.metrics import sine_gain
 from mr_suspension.core.quarter_car import QuarterCarParams
-from mr_suspension.core.simulator import CornerConfig, simulate
+from mr_suspension.sim import config
+from mr_suspension.sim.frequency import sine_dwell_gains
+from mr_suspension.sim.simulator import CornerConfig, simulate
 
 IDEAL = config.load_driver('ideal')
 

@@ -7,9 +7,10 @@ import pytest
 
 from mr_suspension import cli
 from mr_suspension.control.laws import ControllerParams
-from mr_suspension.core import config, road as rd
+from mr_suspension.core import road as rd
 from mr_suspension.core.metrics import ride_metrics
-from mr_suspension.core.simulator import CornerConfig, simulate, simulate_batch
+from mr_suspension.sim import config
+from mr_suspension.sim.simulator import CornerConfig, simulate, simulate_batch
 
 
 def _corner(**kw):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from mr_suspension.core import road as rd
-from mr_suspension.core.corner import build_corner
-from mr_suspension.core.simulator import simulate
+from mr_suspension.sim.corner import build_corner
+from mr_suspension.sim.simulator import simulate
 from mr_suspension.truth import vehicle as V
 
 

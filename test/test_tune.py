@@ -7,10 +7,10 @@ import pytest
 
 from mr_suspension import cli
 from mr_suspension.control.laws import ControllerParams
-from mr_suspension.core import config as cfg, corner
 from mr_suspension.core.metrics import ride_metrics
-from mr_suspension.core.simulator import simulate
 from mr_suspension.evaluation import runner, tune, tune_cli
+from mr_suspension.sim import config as cfg, corner
+from mr_suspension.sim.simulator import simulate
 
 ROADS = ('bump',)  # one short road keeps the tuning tests fast
 
@@ -159,7 +159,7 @@ def test_workers_equal_serial():
     a, b = serial['tuned'][0], par['tuned'][0]
     assert a['tuned']['gains'] == b['tuned']['gains']
     assert a['history'] == b['history']
-    # The constant-current sweep runs on the vectorised affine kernel (core.batch.run), whose
+    # The constant-current sweep runs on the vectorised affine kernel (sim.batch.run), whose
     # last bits differ between processes (about 1e-15 relative); the feedback laws are exact.
     for key in tune.KEYS:
         np.testing.assert_allclose(serial['passive'][key], par['passive'][key], rtol=1e-12)

@@ -69,7 +69,7 @@ def open_loop_cost(car_p, law, dp, drv_p, i_seq, block_n, road_z, road_zd, dt, s
                    nstate):
     """Simulate with the current schedule ``i_seq`` (one value per block) and return the index.
 
-    Same step order as :func:`~mr_suspension.core.simulator.corner_loop` without controller:
+    Same step order as :func:`~mr_suspension.sim.simulator.corner_loop` without controller:
     driver and fluid, damper force and tangent, plant with the road at mid-step.
     ``objective``: 0 body acc RMS, 1 Wk-weighted body acc RMS, 2 dynamic tyre load RMS,
     3 working space RMS.
@@ -111,7 +111,7 @@ def semi_active_bound(config, road, objective='body_acc_rms', block=0.02, x0=Non
                       maxiter=60):
     """Best current trajectory found offline for ``objective`` (module doc).
 
-    ``config``: a :class:`~mr_suspension.core.simulator.CornerConfig` (its controller is
+    ``config``: a :class:`~mr_suspension.sim.simulator.CornerConfig` (its controller is
     ignored; use an ideal driver and zero delay for the bound), ``road``: the road, known in
     full. ``x0``: initial schedule (per block) or ``None`` for the mid current. Returns
     ``(value, schedule, t_blocks)``.

@@ -255,7 +255,7 @@ def full_car_step(t, mb, arb, cps, q, f_d, c_d, z_r, zr_dot, dt, acc, f_t_out, w
         dz_u' = A_ww^-1 b_w - (A_ww^-1 A_wr) dr,
 
     the Schur complement by ``L D L^T`` (symmetric positive definite). The batch kernel
-    (:mod:`~mr_suspension.core.full_car_batch`) runs these operations in this order.
+    (:mod:`~mr_suspension.sim.full_car_batch`) runs these operations in this order.
     """
     nb = int(arb[0])
     h = dt

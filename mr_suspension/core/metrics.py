@@ -109,7 +109,7 @@ def ride_metrics(result, t_event=0.0):
     minimum tyre force ``tyre_force_min`` [N], lift-off fraction, the peak sprung-unsprung
     displacement difference (seed 003 Tables 3-5), the body settling time after ``t_event``
     [s] and the energy the damper dissipated [J]. The same names and units as
-    :func:`mr_suspension.core.corner.batch_metrics`.
+    :func:`mr_suspension.sim.corner.batch_metrics`.
     """
     dt = result.dt
     acc = result.a_s

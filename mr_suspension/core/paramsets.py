@@ -4,7 +4,7 @@ A name such as ``seed001_military`` is looked up as ``config/<kind>/<name>.yaml`
 YAML (or JSON) file is read directly. The config directory is ``$MR_SUSPENSION_CONFIG`` if set,
 else ``config/`` of the package data (:func:`share_dir`). Vehicles, dampers and drivers are
 built here (plant level: the control laws load an inverse damper model by name);
-:mod:`~mr_suspension.core.config` adds the controller sets.
+:mod:`~mr_suspension.sim.config` adds the controller sets.
 """
 
 import os
@@ -142,6 +142,12 @@ def load_damper(name):
     def make(data, path):
         if 'damper' in data:
             data = data['damper']
+        elif str(path).endswith('.json'):
+            raise ValueError(f'{path}: not a fitted model file (no "damper" block); give the '
+                             'model.json written by mr-suspension diagnose')
+        if not isinstance(data, dict):
+            raise ValueError(f'{path}: "damper" must be a mapping of parameters, got '
+                             f'{type(data).__name__}')
         return damper_from_dict(data, source=path)
     return build_set('dampers', name, make)
 

@@ -15,9 +15,9 @@ import yaml
 
 from mr_suspension.cli_common import add_plant_arguments, output_dir, run_command
 from mr_suspension.control.laws import LAW_IDS
-from mr_suspension.core import config as cfg
-from mr_suspension.core.frequency import sine_dwell_gains
 from mr_suspension.evaluation import plots, runner, scenarios as scn, studies, tables
+from mr_suspension.sim import config as cfg
+from mr_suspension.sim.frequency import sine_dwell_gains
 
 STUDIES = ('frequency', 'tradeoff', 'seeds', 'bounds', 'degradation', 'noise', 'estimator')
 

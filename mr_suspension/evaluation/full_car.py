@@ -31,9 +31,9 @@ from scipy import optimize
 from mr_suspension.control.laws import ControllerParams, LAW_IDS
 from mr_suspension.control.modal import ModalParams
 from mr_suspension.core import car_road as cr
-from mr_suspension.core import config as cfg
-from mr_suspension.core import full_car_sim as fs
 from mr_suspension.evaluation import tune
+from mr_suspension.sim import config as cfg
+from mr_suspension.sim import full_car_sim as fs
 
 DEFAULT_ROADS = ('iso_C_20', 'bump_left')
 FULL_CAR_LAWS = ('modal_skyhook', 'modal_clipped_optimal') + tuple(sorted(LAW_IDS))
@@ -70,7 +70,7 @@ class FullCarPlant:
         return damper, driver
 
     def config(self, controller, modal=None):
-        """:class:`~mr_suspension.core.full_car_sim.FullCarConfig` of a law on this plant."""
+        """:class:`~mr_suspension.sim.full_car_sim.FullCarConfig` of a law on this plant."""
         damper, driver = self.parts
         return fs.FullCarConfig(car=self.car, damper=damper, driver=driver,
                                 controller=controller, modal=modal, dt=self.dt)

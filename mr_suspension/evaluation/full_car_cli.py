@@ -15,8 +15,8 @@ import numpy as np
 
 from mr_suspension.cli_common import output_dir
 from mr_suspension.control.laws import ControllerParams
-from mr_suspension.core import full_car_sim as fs
 from mr_suspension.evaluation import full_car as fce
+from mr_suspension.sim import full_car_sim as fs
 
 DEMO_ROAD = 'bump_left'
 

@@ -1,13 +1,13 @@
 """Evaluation figures (matplotlib, Agg backend): time histories, frequency responses, trade-off.
 
-Frequency responses come from :func:`mr_suspension.core.frequency.sine_dwell_gains` (seed 001
+Frequency responses come from :func:`mr_suspension.sim.frequency.sine_dwell_gains` (seed 001
 Figs 7-10: body acceleration, body amplitude, working space and normalised tyre force gains).
 """
 
 import matplotlib
 import numpy as np
 
-from mr_suspension.core.frequency import RESPONSES
+from mr_suspension.sim.frequency import RESPONSES
 
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402, I100  (backend must be chosen first)

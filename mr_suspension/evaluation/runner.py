@@ -12,10 +12,10 @@ every time constant and the dead time of the driver and fluid (0 = ideal actuato
 import numpy as np
 
 from mr_suspension.control.laws import ControllerParams
-from mr_suspension.core import corner
 from mr_suspension.core.metrics import ride_metrics
-from mr_suspension.core.simulator import simulate
 from mr_suspension.evaluation import scenarios as scn
+from mr_suspension.sim import corner
+from mr_suspension.sim.simulator import simulate
 
 METRICS = ('body_acc_rms', 'body_acc_wk_rms', 'vdv', 'working_space_rms', 'working_space_peak',
            'tyre_load_rms', 'settling_time')
@@ -40,7 +40,7 @@ GAIN_SWEEPS = {
 def load_damper(value):
     """Damper parameters from an object, a ``config/dampers`` name or YAML, or a ``model.json``.
 
-    See :func:`mr_suspension.core.corner.load_damper` (a ``model.json`` is a damper fitted by
+    See :func:`mr_suspension.sim.corner.load_damper` (a ``model.json`` is a damper fitted by
     ``mr-suspension diagnose``; a missing one raises ValueError).
     """
     try:
@@ -71,7 +71,7 @@ def build_config(law, vehicle='city_car', damper='rd1005_bingham', driver='wonde
                  control_delay=0.0, actuator_scale=1.0, overrides=None, dt=1e-3):
     """Corner configuration of ``law`` on the given vehicle, damper and driver (names/objects).
 
-    Built by :func:`mr_suspension.core.corner.build_corner`, the builder of every entry point.
+    Built by :func:`mr_suspension.sim.corner.build_corner`, the builder of every entry point.
     """
     return corner.build_corner(controller_for(law, overrides), vehicle, load_damper(damper),
                                driver, dt=dt, control_delay=control_delay,
@@ -112,7 +112,7 @@ def batch_metrics(configs, road):
     """Online metrics of many configurations on one road (parallel, no time histories).
 
     Units as in :func:`~mr_suspension.core.metrics.ride_metrics`
-    (:func:`mr_suspension.core.corner.batch_metrics`).
+    (:func:`mr_suspension.sim.corner.batch_metrics`).
     """
     return corner.batch_metrics(configs, [road])
 
@@ -123,7 +123,7 @@ def passive_sweep(values, scenario='iso_C_20', vehicle='city_car',
 
     ``kind='current'``: ``values`` are currents [A] with the damper ``damper`` and an ideal
     driver; ``kind='linear'``: ``values`` are viscous coefficients [N s/m] of a linear damper.
-    Returns the dict of metric arrays of :func:`~mr_suspension.core.simulator.simulate_batch`.
+    Returns the dict of metric arrays of :func:`~mr_suspension.sim.simulator.simulate_batch`.
     """
     from mr_suspension.core.damper import LinearDamperParams
     sc = scn.make(scenario, dt)

@@ -22,14 +22,14 @@ from dataclasses import replace
 import numpy as np
 
 from mr_suspension.control.laws import ControllerParams
-from mr_suspension.core import config as cfg
 from mr_suspension.core import damper as dmp
 from mr_suspension.core import road as rd
 from mr_suspension.core.extended import ExtendedDamperParams
-from mr_suspension.core.frequency import sine_dwell_gains
 from mr_suspension.core.metrics import ride_metrics
-from mr_suspension.core.simulator import CornerConfig, simulate
 from mr_suspension.evaluation import plots
+from mr_suspension.sim import config as cfg
+from mr_suspension.sim.frequency import sine_dwell_gains
+from mr_suspension.sim.simulator import CornerConfig, simulate
 
 SEED001_CURRENTS = (0.0, 0.1, 0.3, 0.5)
 SEED001_TEST_FREQS = (0.4, 1.2, 2.0, 2.8, 3.6)

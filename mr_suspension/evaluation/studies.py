@@ -23,9 +23,9 @@ from mr_suspension.control import estimation as est
 from mr_suspension.control.optimal import schedule_from_run, semi_active_bound
 from mr_suspension.core import road as rd
 from mr_suspension.core.metrics import ride_metrics
-from mr_suspension.core.simulator import simulate
 from mr_suspension.evaluation import runner
 from mr_suspension.evaluation import scenarios as scn
+from mr_suspension.sim.simulator import simulate
 
 INDICES = ('body_acc_rms', 'body_acc_wk_rms', 'working_space_rms', 'tyre_load_rms')
 

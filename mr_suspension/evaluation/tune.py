@@ -20,7 +20,7 @@ feasibility rule, without a second simulation per candidate for a separate const
 Optimiser: :func:`scipy.optimize.differential_evolution` (Storn & Price 1997) on the bounded
 gains of :data:`SPACES` (damping gains and LQ weights searched in log10, currents linearly or in
 log10), ``updating='deferred'`` and ``vectorized=True`` so that a whole generation is one call
-of the batch simulator (:func:`mr_suspension.core.corner.batch_metrics`), a fixed seed (the
+of the batch simulator (:func:`mr_suspension.sim.corner.batch_metrics`), a fixed seed (the
 result is reproducible), and the default gains as a member of the first population (``x0``):
 DE keeps a member only when its trial is better, so the tuned gains are never worse than the
 defaults on ``J``. No gradient polish: the on-off laws switch, so ``J`` is only piecewise smooth
@@ -51,9 +51,9 @@ from scipy import optimize, signal
 
 from mr_suspension import parallel
 from mr_suspension.control.laws import ControllerParams, LAW_IDS
-from mr_suspension.core import config as cfg, corner
-from mr_suspension.core.simulator import simulate
 from mr_suspension.evaluation import scenarios as scn
+from mr_suspension.sim import config as cfg, corner
+from mr_suspension.sim.simulator import simulate
 
 RHO = 1000.0
 CHUNK = 16

@@ -15,8 +15,8 @@ import numpy as np
 import yaml
 
 from mr_suspension.cli_common import add_plant_arguments, output_dir
-from mr_suspension.core import config as cfg
 from mr_suspension.evaluation import scenarios as scn, tune
+from mr_suspension.sim import config as cfg
 
 EPILOG = """\
 objective (road-set mean, each road normalised by the softest passive setting):

@@ -70,7 +70,7 @@ def _diagnose_settings(args):
     if bad:
         raise dataio.DataError(f'unknown effect(s) {bad}; known: '
                                f'{", ".join(engine.ALL_EFFECTS)}')
-    from mr_suspension.core.config import load_driver
+    from mr_suspension.sim.config import load_driver
     return opts, effects, args.folds, load_driver(args.driver)
 
 
@@ -286,7 +286,7 @@ def demo(out_dir, vrths=None):
         return 0
     files = [d / 'preprocessed_sine' / f'{name}.txt' for name in DEMO_TESTS]
     quake = d / 'validation' / 'validacion.mat'
-    from mr_suspension.core.config import load_driver
+    from mr_suspension.sim.config import load_driver
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')  # the input notes are in the report
         rep, _, _ = diagnose_to_dir([str(f) for f in files], output_dir(out_dir),

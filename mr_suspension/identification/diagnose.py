@@ -24,6 +24,7 @@ import warnings
 from numba import njit
 import numpy as np
 
+from mr_suspension.identification import catalogue
 from mr_suspension.identification import data as dataio
 from mr_suspension.identification import domain as dom_mod
 from mr_suspension.identification import engine, forward, model_io, noise, reference
@@ -70,29 +71,10 @@ JOBS = max(1, min(4, os.cpu_count() or 1))  # threads for independent fits (kern
 # simplex on the exponent), then the spring (Newton in every step) and the current timing.
 LONGEST = {'hysteresis': 5, 'yield_shape': 4, 'series_stiffness': 3, 'current_delay': 2,
            'current_lag_asymmetric': 1}
-NESTED = {('current_lag', 'current_lag_asymmetric')}
+NESTED = catalogue.nested(catalogue.RIG)
 LOOPS = ('series_stiffness', 'hysteresis')  # what a force lagging the motion resembles
-EXCLUSIVE = ({'current_lag', 'current_lag_asymmetric'}, {'hysteresis', 'yield_shape'})
-SEPARATING_EXPERIMENT = {
-    frozenset(('current_delay', 'current_lag')):
-        'current steps at constant speed: a dead time shifts the force edge, a lag rounds it',
-    frozenset(('current_delay', 'current_lag_asymmetric')):
-        'current steps up and down at constant speed (rise and fall edges separately)',
-    frozenset(('hysteresis', 'series_stiffness')):
-        'harmonic tests at several frequencies at one amplitude: the series-compliance lag '
-        'grows with frequency, a rate-independent hysteresis loop does not',
-    frozenset(('gas_spring', 'series_stiffness')):
-        'slow ramps and held displacement offsets: a gas spring holds force at zero velocity',
-    frozenset(('hysteresis', 'yield_shape')):
-        'harmonic tests at several amplitudes at one frequency: a pre-yield loop shows as a '
-        'force lag at reversals, a yield shape is the same on loading and unloading',
-    frozenset(('gas_spring', 'hysteresis')):
-        'harmonic tests about several displacement offsets',
-    frozenset(('current_saturation', 'direction_asymmetry')):
-        'harmonic tests at more than three current levels up to the maximum current',
-    frozenset(('thermal_fade', 'gas_spring')):
-        'a long high-power run with a repeated identical test before and after',
-}
+EXCLUSIVE = catalogue.exclusive(catalogue.RIG)
+SEPARATING_EXPERIMENT = catalogue.RIG_SEPARATING
 
 
 def fold_stats(child, parent):
@@ -658,13 +640,7 @@ def location(effect, input_kind):
     Current dynamics fitted in the force model are the fluid's (``damper``) when the measured
     coil current is the input, else the lumped driver-plus-fluid chain (``driver``).
     """
-    if effect in engine.SENSOR_EFFECTS:
-        return 'sensor'
-    if effect.startswith('driver_'):
-        return 'driver'
-    if effect in ('current_delay', 'current_lag', 'current_lag_asymmetric'):
-        return 'damper' if input_kind == 'current' else 'driver'
-    return 'damper'
+    return catalogue.where(catalogue.by_name(catalogue.RIG)[effect], input_kind == 'current')
 
 
 @dataclass(frozen=True)

@@ -30,26 +30,12 @@ from scipy import optimize, signal
 
 from mr_suspension.core.extended import (ExtendedDamperParams, simulate_extended,
                                          trajectory_key)
+from mr_suspension.identification import catalogue
 
-EFFECTS = ('current_delay', 'current_lag', 'current_lag_asymmetric', 'current_saturation',
-           'hysteresis', 'series_stiffness', 'gas_spring', 'thermal_fade', 'direction_asymmetry',
-           'yield_shape')
-SENSOR_EFFECTS = ('channel_delay', 'channel_filter')
+EFFECTS = catalogue.names(catalogue.RIG, ('current', 'damper'))
+SENSOR_EFFECTS = catalogue.names(catalogue.RIG, ('sensor',))
 ALL_EFFECTS = SENSOR_EFFECTS + EFFECTS
-EFFECT_PARAMS = {
-    'channel_delay': ('delay',),
-    'channel_filter': ('f_ch',),
-    'current_delay': ('dead_time',),
-    'current_lag': ('tau_lag',),
-    'current_lag_asymmetric': ('tau_rise', 'tau_fall'),
-    'current_saturation': ('i_sat', 'sat_n'),
-    'hysteresis': ('x_h', 'hyst_n', 'hyst_r'),
-    'series_stiffness': ('k_series',),
-    'gas_spring': (),
-    'thermal_fade': ('kappa', 'tau_thermal'),
-    'direction_asymmetry': ('rho',),
-    'yield_shape': ('yield_n',),
-}
+EFFECT_PARAMS = {e.name: e.params for e in catalogue.RIG if e.stage == 'model'}
 FORCE_DEPENDENT = ('series_stiffness', 'thermal_fade')
 # Searched on a linear scale (may be 0 or < 0).
 LINEAR_PARAMS = ('rho', 'dead_time', 'delay', 'hyst_r')

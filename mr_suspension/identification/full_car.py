@@ -69,8 +69,8 @@ class CarNominal:
     @classmethod
     def load(cls, car='lisa_full_car', damper='rd1005_bingham', driver='wonder_box'):
         """Load from ``config/`` names or YAML paths."""
-        from mr_suspension.core.corner import load_damper, load_driver
         from mr_suspension.core.paramsets import load_full_car
+        from mr_suspension.sim.corner import load_damper, load_driver
         return cls(load_full_car(car), load_damper(damper), load_driver(driver))
 
     def corner(self, i):
@@ -82,7 +82,7 @@ class CarNominal:
 
 @dataclass
 class FullCarDiagnosis:
-    """Result: one :class:`~mr_suspension.identification.vehicle.VehicleDiagnosis` per corner.
+    """Result: one :class:`~mr_suspension.identification.vehicle.VehicleResult` per corner.
 
     ``passes``: per pass, the corners diagnosed and their causes (Gauss-Seidel order);
     ``coupling``: ``A`` [1/kg]; ``effective_mass``: ``1 / A_ii`` [kg]; ``baseline``: the

@@ -11,32 +11,13 @@ import time
 
 import numpy as np
 
-from mr_suspension.identification import diagnose, engine, model_io, reference
+from mr_suspension.identification import catalogue, diagnose, engine, model_io, reference
 
 TRANSFER_LOSS = 0.05  # a cause whose removal lowers a validation NRMSE by this share: reported
 
 BASELINE_MODEL = ('F = F0 + (c0 + c1 i) v + (fy0 + fy1 i) tanh(v / v_y), i = command through '
                   'the static driver map (seed 003 eq. 5.2)')
-EFFECT_TEXT = {
-    'channel_delay': 'force channel shifted in time against the motion channels (filter, skew)',
-    'channel_filter': 'force channel low-passed (2nd-order Butterworth anti-alias filter, '
-                      'cut-off f_ch)',
-    'driver_delay': 'driver dead time (command -> measured coil current) differs from nominal',
-    'driver_lag': 'driver rise/fall time constants differ from nominal',
-    'current_delay': 'dead time between the current command and the field',
-    'current_lag': 'first-order lag of the field current (one time constant)',
-    'current_lag_asymmetric': 'first-order lag with different rise and fall time constants '
-                              '(driver plus fluid demagnetisation, seed 000)',
-    'current_saturation': 'yield force saturating with current, Fy = fy0 + fy1 i_s tanh(i/i_s)',
-    'hysteresis': 'rate-independent pre-yield loop: a share w_h of the yield force follows a '
-                  'Bouc-Wen state (length x_h, exponent n_h, unloading shape r_h; Dahl: 1, 1, 0)',
-    'series_stiffness': 'compliance k1 in series with the damping element (seed 000)',
-    'gas_spring': 'accumulator force kg1 x + kg2 x^2 (seed 000 k2)',
-    'thermal_fade': 'force falling as (1 - kappa E) with stored heat E from dissipated energy',
-    'direction_asymmetry': 'different force in rebound and compression: viscous force x '
-                           '(1 + rho tanh(v/v_y)), yield force x (1 + rho y)',
-    'yield_shape': 'yield sigmoid w / (1 + |w|^n)^(1/n) instead of tanh(w), w = v / v_y',
-}
+EFFECT_TEXT = {e.name: e.enters for e in catalogue.RIG}
 
 
 def _nrmse(mse, std):

@@ -28,7 +28,7 @@ import numpy as np
 from scipy import optimize, signal
 
 from mr_suspension.core.quarter_car import TOP_MOUNT_MASS_FRACTION
-from mr_suspension.identification import diagnose, engine, sensors, vehicle_data
+from mr_suspension.identification import catalogue, diagnose, engine, sensors, vehicle_data
 from mr_suspension.identification.data import DataError
 from mr_suspension.identification.vehicle_data import G, nan_safe
 
@@ -45,80 +45,24 @@ MASS_MIN = 0.05        # sprung-mass change below the wheel equation's systemati
 MATERIAL = 1.5         # a cause must change its signal by >= this x that sensor's noise ...
 G_STRONG = 0.4         # ... or remove this share of the held-out MSE (noise-level, everywhere)
 EDGES_MIN = 4          # current edges each way that make the current dynamics testable
-SENSOR_EFFECTS = ('imu_timing',)  # the stroke lag is a model-free load-time check
-CURRENT_EFFECTS = ('current_delay', 'current_lag', 'current_lag_asymmetric')
-PHYSICS = ('strut_friction', 'bump_stop', 'spring_nonlinearity', 'top_mount') \
-    + CURRENT_EFFECTS + ('current_saturation', 'direction_asymmetry')
-ROAD_EFFECTS = ('sprung_mass',)
+SENSOR_EFFECTS = catalogue.names(catalogue.CAR, ('sensor',))  # the stroke lag: checked at load
+CURRENT_EFFECTS = catalogue.names(catalogue.CAR, ('current',))
+PHYSICS = catalogue.names(catalogue.CAR, ('vehicle', 'current', 'damper'))
+ROAD_EFFECTS = catalogue.names(catalogue.CAR, stage='road')
 ALL_EFFECTS = SENSOR_EFFECTS + PHYSICS + ROAD_EFFECTS
-EXCLUSIVE = ({'current_lag', 'current_lag_asymmetric'},)
-
-# The one effect -> parameter table: where each fitted effect goes (part, field names). The
-# vehicle fields are QuarterCarParams' corner options (written when the class has them, else
-# reported under ``not_written``); top_mount falls back to the extended damper's k_series.
-EFFECT_PARAMS = {
-    'imu_timing': ('sensor', ('imu_timing',)),
-    'strut_friction': ('vehicle', ('f_fric', 'v_fric')),
-    'bump_stop': ('vehicle', ('k_bs', 'x_bs')),
-    'spring_nonlinearity': ('vehicle', ('k_s3',)),
-    'top_mount': ('vehicle', ('k_tm', 'c_tm')),
-    'sprung_mass': ('vehicle', ('m_s',)),
-    'current_delay': ('driver', ('dead_time',)),
-    'current_lag': ('driver', ('tau_rise', 'tau_fall')),
-    'current_lag_asymmetric': ('driver', ('tau_rise', 'tau_fall')),
-    'current_saturation': ('damper', ('i_sat',)),
-    'direction_asymmetry': ('damper', ('rho',)),
-}
-EFFECT_TEXT = {
-    'imu_timing': 'the body IMU samples are offset in time from the stroke and current (a '
-                  'step-mean acceleration: half a sample; an anti-alias filter delay)',
-    'strut_friction': 'strut (seal, bushing) friction F = f_fric tanh(v / v_fric)',
-    'bump_stop': 'progressive stop k_bs (|x| - x_bs)^2 sign(x) beyond a clearance',
-    'spring_nonlinearity': 'progressive spring k_s x + k_s3 x^3',
-    'top_mount': 'compliant top mount: the strut force reaches the body through a '
-                 'Kelvin-Voigt mount (k_tm, c_tm) from a strut-top mass of 1 % of m_s',
-    'sprung_mass': 'sprung mass differs from the nominal (wheel equation, needs a road)',
-    'current_delay': 'field current = command delayed by a different dead time',
-    'current_lag': 'different (lumped) first-order current lag',
-    'current_lag_asymmetric': 'lumped current lag with separate rise and fall time constants',
-    'current_saturation': 'the field saturates with current: c1 and fy1 see i_s tanh(i / i_s)',
-    'direction_asymmetry': 'damper force scaled by 1 + rho tanh(v / v_y) (rebound vs bump)',
-}
-SEPARATING = {
-    frozenset(('strut_friction', 'direction_asymmetry')): 'slow strokes (< 0.05 m/s) both ways '
-    'at two current levels: friction does not scale with current',
-    frozenset(('strut_friction', 'top_mount')): 'a slow harmonic stroke (0.5 Hz) and a fast '
-    'one (8 Hz) at one amplitude',
-    frozenset(('bump_stop', 'spring_nonlinearity')): 'a slow quasi-static stroke over the '
-    'whole travel (ramp unloading, or a rig run)',
-    frozenset(('current_delay', 'current_lag')): 'current steps up and down while driving '
-    'steadily on a rough road',
-    frozenset(('strut_friction', 'fy0')): 'the damper alone on a rig at 0 A (its current-free '
-    'yield force), or the strut without the damper: what the car adds to the rig figure is '
-    'the strut friction',
-    frozenset(('strut_friction', 'c0')): 'the damper alone on a rig at 0 A (its viscous '
-    'coefficient)',
-    frozenset(('spring_nonlinearity', 'k_s')): 'a slow quasi-static stroke over the whole '
-    'travel (ramp unloading, or a rig run)',
-}
+EXCLUSIVE = catalogue.exclusive(catalogue.CAR)
+# Where each fitted effect goes (part, field names). The vehicle fields are QuarterCarParams'
+# corner options (written when the class has them, else reported under ``not_written``);
+# top_mount falls back to the extended damper's k_series; the current chain's to the driver.
+EFFECT_PARAMS = {e.name: ('driver' if e.location == 'current' else e.location, e.params)
+                 for e in catalogue.CAR}
+EFFECT_TEXT = {e.name: e.enters for e in catalogue.CAR}
+SEPARATING = catalogue.CAR_SEPARATING
 # A baseline term the fit refits that may hold an effect: (effect, its linear coefficient).
 BASELINE_TERMS = ('c0', 'fy0', 'k_s')
 ALIAS_SHIFT = 0.25  # a refitted baseline term this far from its nominal value has absorbed
 # something (beyond a damper's production spread of about 10-15 %)
-UNTESTABLE_HOW = {
-    'current_delay': 'drive a rough road with the controller switching the current in steps '
-                     '(>= 4 steps each way), e.g. on-off skyhook',
-    'current_lag': 'as current_delay', 'current_lag_asymmetric': 'as current_delay',
-    'current_saturation': 'drive with at least three distinct current levels up to the max',
-    'sprung_mass': 'a quarter-car rig run with the shaker displacement recorded (road column), '
-                   'or a known ballast change',
-    'strut_friction': 'strokes reversing direction (any rough road)',
-    'direction_asymmetry': 'strokes reversing direction (any rough road)',
-    'bump_stop': 'strokes of more than 1 cm (a bump or pothole)',
-    'spring_nonlinearity': 'strokes of more than 1 cm (a bump or pothole)',
-    'top_mount': 'stroke content above 5 Hz (a rough road)',
-    'imu_timing': 'stroke content above 2 Hz',
-}
+UNTESTABLE_HOW = {e.name: e.how for e in catalogue.CAR}
 
 
 @dataclass
@@ -132,7 +76,7 @@ class Nominal:
     @classmethod
     def load(cls, vehicle='city_car', damper='rd1005_bingham', driver='wonder_box'):
         """Load from ``config/`` names or YAML paths (as ``simulate`` does)."""
-        from mr_suspension.core.corner import load_damper, load_driver, load_vehicle
+        from mr_suspension.sim.corner import load_damper, load_driver, load_vehicle
         return cls(load_vehicle(vehicle), load_damper(damper), load_driver(driver))
 
     def damper_coeffs(self):
@@ -1108,8 +1052,8 @@ def _without(P, fit, e, rows):
 
 
 @dataclass
-class VehicleDiagnosis:
-    """Result: causes, verdict, fits, figures and the fitted corner."""
+class VehicleResult:
+    """Result of one corner: causes, verdict, fits, figures and the fitted corner."""
 
     verdict: str
     causes: list
@@ -1364,7 +1308,7 @@ def corner_params(P, final, road):
 def run(records, nominal=None, effects=ALL_EFFECTS, progress=None, prepared=None):
     """Diagnose a corner from its records (or from ``prepared`` data with a coupling).
 
-    Returns ``(VehicleDiagnosis, Prepared, predictions)``: the typed result, the prepared
+    Returns ``(VehicleResult, Prepared, predictions)``: the typed result, the prepared
     data it was fitted on and the outer-block predictions of baseline and extended model.
     """
     bad = [e for e in effects if e not in ALL_EFFECTS]
@@ -1451,10 +1395,10 @@ def run(records, nominal=None, effects=ALL_EFFECTS, progress=None, prepared=None
         if np.dot(c_fit, c_fit) > 0:
             scale = float(np.dot(c_fit, c_nom) / np.dot(c_fit, c_fit))
             notes['m_s_if_nominal_damper'] = corner['m_s'] * scale
-    return VehicleDiagnosis(verdict=verdict, causes=causes, sensor=sensor, ambiguous=ambiguous,
-                            untestable=untestable, base=base_o, final=final_o, steps=steps,
-                            heldout=heldout, noise=noise, road=road, corner=corner,
-                            findings=findings, notes=notes), P, (base_pred, fin_pred)
+    return VehicleResult(verdict=verdict, causes=causes, sensor=sensor, ambiguous=ambiguous,
+                         untestable=untestable, base=base_o, final=final_o, steps=steps,
+                         heldout=heldout, noise=noise, road=road, corner=corner,
+                         findings=findings, notes=notes), P, (base_pred, fin_pred)
 
 
 # -- outputs ------------------------------------------------------------------------------------
@@ -1551,10 +1495,7 @@ def report_dict(res, P, elapsed):
 
 
 def _location(e, coil):
-    part = EFFECT_PARAMS[e][0]
-    if part == 'driver':
-        return 'damper' if coil else 'driver'
-    return part
+    return catalogue.where(catalogue.by_name(catalogue.CAR)[e], coil)
 
 
 def markdown(rep, figures, files):
@@ -1719,7 +1660,7 @@ def _jsonable(o):
 
 def diagnose_vehicle(paths, out_dir, nominal=None, effects=ALL_EFFECTS, namespace=None,
                      road_topic=None, make_plots=True, progress=None):
-    """Load, diagnose and write; returns ``(report dict, VehicleDiagnosis)``."""
+    """Load, diagnose and write; returns ``(report dict, VehicleResult)``."""
     from mr_suspension.identification import vehicle_data
     t0 = time.time()
     records = vehicle_data.load(paths, namespace, road_topic)
@@ -1736,10 +1677,63 @@ def predict_records(res, records, nominal):
     and the NRMSE of each model over the whole records.
     """
     P = Prepared(records, nominal)
-    out = []
-    for fit in (res.base, res.final):
-        mount_refresh(P, fit)
-        out.append(predict(P, fit))
-    y = P.y_all
-    nrmse = [float(np.sqrt(np.mean((y - p - np.mean(y - p)) ** 2)) / np.std(y)) for p in out]
-    return (y, out[0], out[1]), {'baseline_nrmse': nrmse[0], 'extended_nrmse': nrmse[1]}
+    out = [_predict_unseen(P, fit) for fit in (res.base, res.final)]
+    nrmse = [_nrmse(P.y_all, p) for p in out]
+    return (P.y_all, out[0], out[1]), {'baseline_nrmse': nrmse[0], 'extended_nrmse': nrmse[1]}
+
+
+def _predict_unseen(P, fit):
+    mount_refresh(P, fit)
+    return predict(P, fit)
+
+
+def _nrmse(y, p):
+    """RMS of the error with its mean removed (the fit's offset) over the std of ``y``."""
+    e = y - p
+    return float(np.sqrt(np.mean((e - np.mean(e)) ** 2)) / np.std(y))
+
+
+class VehicleDiagnosis:
+    """Estimator of one corner, as :class:`~mr_suspension.identification.diagnose.Diagnosis`.
+
+    ``fit(records)`` diagnoses a corner's records (:func:`run`) and returns the
+    :class:`VehicleResult`; ``predict(records)`` gives the body acceleration [m/s^2] of records
+    the fit never saw (gravity and mean removed, low-passed as fitted); ``score(records)`` its
+    NRMSE against the measured one.
+    """
+
+    def __init__(self, nominal=None, effects=ALL_EFFECTS, progress=None):
+        bad = [e for e in effects if e not in ALL_EFFECTS]
+        if bad:
+            raise ValueError(f'unknown effect(s) {bad}; known: {", ".join(ALL_EFFECTS)}')
+        self.nominal = nominal
+        self.effects = tuple(effects)
+        self.progress = progress
+        self.result_ = None
+
+    def fit(self, records):
+        """Diagnose ``records`` (``vehicle_data.VehicleRecord``); return the ``VehicleResult``."""
+        self.nominal = self.nominal or Nominal.load()
+        self.result_ = run(list(records), self.nominal, self.effects, self.progress)[0]
+        return self.result_
+
+    def _fits(self, model):
+        if self.result_ is None:
+            raise RuntimeError('VehicleDiagnosis: call fit(records) first')
+        if model not in ('extended', 'baseline'):
+            raise ValueError(f"model must be 'extended' or 'baseline', got {model!r}")
+        return self.result_.final if model == 'extended' else self.result_.base
+
+    def predict(self, records, model='extended'):
+        """Body acceleration [m/s^2] of ``records`` by the extended (or baseline) model.
+
+        One array over the records in order, gravity and mean removed, low-passed as fitted.
+        """
+        fit = self._fits(model)
+        return _predict_unseen(Prepared(list(records), self.nominal), fit)
+
+    def score(self, records, model='extended'):
+        """NRMSE of the body acceleration on ``records`` (error mean removed, over its std)."""
+        fit = self._fits(model)
+        P = Prepared(list(records), self.nominal)
+        return _nrmse(P.y_all, _predict_unseen(P, fit))

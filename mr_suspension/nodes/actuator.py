@@ -5,7 +5,7 @@ Subscribes to ``current_command`` and to the damper motion (joint ``suspension``
 fixed rate): per sample it advances the driver and fluid by one step with the newest valid
 command, evaluates the damper law at that stroke and rate and publishes ``damper/force`` (force
 and tangent ``dF/dv``, stamped with the motion sample) and the measured ``coil_current``
-(:class:`~mr_suspension.core.stepper.ActuatorStepper`).
+(:class:`~mr_suspension.sim.stepper.ActuatorStepper`).
 
 Real time: each motion sample is answered at once with the newest valid command, so the force
 is normally back at the plant before its next step; the command is then usually the one computed
@@ -42,9 +42,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
-from mr_suspension.core.stepper import ActuatorStepper
 from mr_suspension.nodes import cdr, common, contract as c, health
 from mr_suspension.nodes.health import ERROR, WARN
+from mr_suspension.sim.stepper import ActuatorStepper
 
 NODE = 'actuator'
 SUSPENSION = c.JOINTS_TRUTH.index('suspension')

@@ -5,6 +5,7 @@ Parameter defaults live in ``config/nodes/<node>.yaml`` (ROS 2 parameter files, 
 the default from that file, so ``--ros-args --params-file`` and ``-p`` override them as usual.
 """
 
+from dataclasses import dataclass
 import json
 import math
 import os
@@ -23,9 +24,9 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 import yaml
 
-from mr_suspension.core import config as cfg
-from mr_suspension.core.corner import build_corner
 from mr_suspension.nodes import contract
+from mr_suspension.sim import config as cfg
+from mr_suspension.sim.corner import build_corner
 
 
 def ensure_environment():
@@ -180,6 +181,62 @@ def declare(node, defaults, name, description, lo=None, hi=None):
     return node.declare_parameter(name, value, desc).value
 
 
+@dataclass(frozen=True)
+class FailSafe:
+    """Fail-safe and bookkeeping parameters of a controller node (corner or modal)."""
+
+    gravity: float
+    sensor_timeout: float
+    fallback_current: float
+    frozen_timeout: float
+    frozen_requires_motion: bool
+    recovery_time: float
+    diagnostic_period: float
+    watchdog_period: float
+    coil_feedback: str
+    recorders: int
+    stats_file: str
+
+
+def declare_fail_safe(node, defaults, who, timeout_scope='', watchdog_scope='Real time',
+                      coil_text='Subscribe to the measured coil_current'):
+    """Declare a controller's fail-safe parameters (descriptions, ranges); return them.
+
+    ``who`` names the node in errors; the other arguments word the descriptions that differ
+    between the corner controller and the modal one.
+    """
+    def get(name, description, lo=None, hi=None):
+        return declare(node, defaults, name, description, lo, hi)
+
+    out = FailSafe(
+        gravity=get('gravity', 'Gravity removed from the accelerometers [m/s^2]', 0.0, 20.0),
+        sensor_timeout=get('sensor_timeout', 'Sensors older than this trigger the fallback'
+                           f'{timeout_scope} [s]', 0.0005, 10.0),
+        fallback_current=get('fallback_current', 'Safe fixed current commanded in every '
+                             'fallback [A]', 0.0, 10.0),
+        frozen_timeout=get('frozen_timeout', 'Real time: a sensor whose value has not changed '
+                           'for this long is frozen [s]', 0.001, 10.0),
+        frozen_requires_motion=get('frozen_requires_motion', 'Frozen only while another sensor '
+                                   'changes (exact simulated values at rest never change); '
+                                   'false for real, noisy sensors'),
+        recovery_time=get('recovery_time', 'Inputs healthy this long before leaving a '
+                          'fallback [s]', 0.0, 10.0),
+        diagnostic_period=get('diagnostic_period', 'Period of the /diagnostics status (also '
+                              'sent on every change) [s]', 0.01, 60.0),
+        watchdog_period=get('watchdog_period', f'{watchdog_scope}: stale-sensor check period '
+                            '[s]; the fallback starts within sensor_timeout + watchdog_period',
+                            0.0005, 1.0),
+        coil_feedback=get('coil_feedback', f'{coil_text}: "auto" (if the law reads the field '
+                          'current), "on" or "off" (the law uses its last command)'),
+        recorders=get('recorders', 'Lock-step: recorders to wait for on current_command '
+                      'before the first command', 0, 10),
+        stats_file=get('stats_file', 'Write run statistics as JSON here on exit ("" = off)'))
+    if out.coil_feedback not in ('auto', 'on', 'off'):
+        raise ValueError(f'{who}: coil_feedback must be auto, on or off, got '
+                         f'{out.coil_feedback!r}')
+    return out
+
+
 def declare_corner(node, defaults):
     """Declare the parameter-set names and rate shared by the nodes; return the CornerConfig."""
     names = {}
@@ -197,7 +254,7 @@ def corner_config(vehicle='city_car', damper='rd1005_bingham', driver='wonder_bo
     """Build the corner the nodes and the offline reference use from parameter-set names.
 
     The same builder as the CLI and the evaluation
-    (:func:`mr_suspension.core.corner.build_corner`): the controller gets the plant knowledge
+    (:func:`mr_suspension.sim.corner.build_corner`): the controller gets the plant knowledge
     of the corner (vehicle, damper model, driver range).
     """
     return build_corner(controller, vehicle, damper, driver, dt=1.0 / rate)
@@ -228,11 +285,11 @@ def full_car_config(vehicle='lisa_full_car', damper='rd1005_bingham', driver='wo
                     controller='skyhook_onoff', rate=1000.0, modal=None):
     """Build the full car the nodes and the offline reference use from parameter-set names.
 
-    Corner ``i`` of it (:meth:`~mr_suspension.core.full_car_sim.FullCarConfig.corner`) equals
+    Corner ``i`` of it (:meth:`~mr_suspension.sim.full_car_sim.FullCarConfig.corner`) equals
     :func:`corner_config` with ``vehicle='<vehicle>:<corner>'``, which the corner nodes use.
     """
-    from mr_suspension.core import corner as cn
-    from mr_suspension.core.full_car_sim import FullCarConfig
+    from mr_suspension.sim import corner as cn
+    from mr_suspension.sim.full_car_sim import FullCarConfig
     data = cfg.load_yaml('vehicles', vehicle)
     if isinstance(data, dict) and 'front' not in data and 'rear' not in data:
         raise ValueError(f'vehicle {vehicle!r} is a quarter car (no front and rear corners); '

@@ -3,7 +3,7 @@
 Subscribes only to what a car's sensors give: ``imu/body``, ``imu/wheel`` (specific force,
 gravity removed here), ``stroke`` and the driver's measured ``coil_current``; never to ground
 truth. Fills the measurement vector of :mod:`mr_suspension.control.laws` and runs the configured
-law (:class:`~mr_suspension.core.stepper.ControllerStepper`; the control core estimates body
+law (:class:`~mr_suspension.sim.stepper.ControllerStepper`; the control core estimates body
 velocity and stroke rate from these sensors), publishes ``current_command``. The measured coil
 current fills the field-current slot (NaN until the first one: the core then uses its last
 command). Only the laws that invert the damper model read that slot
@@ -39,10 +39,10 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64
 
-from mr_suspension.core.stepper import ControllerStepper
 from mr_suspension.nodes import cdr, common, contract as c, health
 from mr_suspension.nodes.health import WARN
 from mr_suspension.nodes.sensor_watch import SensorWatch
+from mr_suspension.sim.stepper import ControllerStepper
 
 NODE = 'controller'
 # Frozen-sensor check with frozen_requires_motion: a sensor counts as moving when its value
@@ -61,41 +61,20 @@ class ControllerNode(Node):
         self.config = common.declare_corner(self, d)
         self.lockstep = common.declare(self, d, 'lockstep', 'Lock-step: run once per sensor '
                                        'sample after the coil current of the step before')
-        self.gravity = common.declare(self, d, 'gravity', 'Gravity removed from the '
-                                      'accelerometers [m/s^2]', 0.0, 20.0)
-        self.sensor_timeout = common.declare(self, d, 'sensor_timeout', 'Sensors older than '
-                                             'this trigger the fallback [s]', 0.0005, 10.0)
-        self.fallback_current = common.declare(self, d, 'fallback_current', 'Safe fixed '
-                                               'current commanded in every fallback [A]', 0.0,
-                                               10.0)
-        self.frozen_timeout = common.declare(
-            self, d, 'frozen_timeout', 'Real time: a sensor whose value has not changed for '
-            'this long is frozen [s]', 0.001, 10.0)
-        self.frozen_requires_motion = common.declare(
-            self, d, 'frozen_requires_motion', 'Frozen only while another sensor changes (exact '
-            'simulated values at rest never change); false for real, noisy sensors')
-        recovery_time = common.declare(self, d, 'recovery_time', 'Inputs healthy this long '
-                                       'before leaving a fallback [s]', 0.0, 10.0)
-        diagnostic_period = common.declare(self, d, 'diagnostic_period', 'Period of the '
-                                           '/diagnostics status (also sent on every change) '
-                                           '[s]', 0.01, 60.0)
+        fs = common.declare_fail_safe(self, d, NODE, watchdog_scope='Real time, trigger sample')
         self.trigger = common.declare(self, d, 'trigger', 'Run the law per complete sensor '
                                       'sample ("sample") or on a wall timer ("timer")')
         if self.trigger not in ('sample', 'timer'):
             raise ValueError(f'controller: trigger must be sample or timer, got {self.trigger!r}')
-        self.watchdog_period = common.declare(
-            self, d, 'watchdog_period', 'Real time, trigger sample: stale-sensor check period '
-            '[s]; the fallback starts within sensor_timeout + watchdog_period', 0.0005, 1.0)
-        coil_feedback = common.declare(
-            self, d, 'coil_feedback', 'Subscribe to the measured coil_current: "auto" (if the '
-            'law reads the field current), "on" or "off" (the law uses its last command)')
-        if coil_feedback not in ('auto', 'on', 'off'):
-            raise ValueError('controller: coil_feedback must be auto, on or off, got '
-                             f'{coil_feedback!r}')
-        recorders = common.declare(self, d, 'recorders', 'Lock-step: recorders to wait for on '
-                                   'current_command before the first command', 0, 10)
-        self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
-                                                 'as JSON here on exit ("" = off)'))
+        self.gravity = fs.gravity
+        self.sensor_timeout = fs.sensor_timeout
+        self.fallback_current = fs.fallback_current
+        self.frozen_timeout = fs.frozen_timeout
+        self.frozen_requires_motion = fs.frozen_requires_motion
+        self.watchdog_period = fs.watchdog_period
+        recovery_time, diagnostic_period = fs.recovery_time, fs.diagnostic_period
+        coil_feedback, recorders = fs.coil_feedback, fs.recorders
+        self.stats = common.Stats(fs.stats_file)
         self.stepper = ControllerStepper(self.config).warm_up()
         self.use_coil = coil_feedback == 'on' or \
             (coil_feedback == 'auto' and self.stepper.uses_field)

@@ -8,21 +8,21 @@ lock-step, ``/clock``. Subscribes to each corner's ``damper/force``. So per corn
 controller and actuator nodes run unchanged in the corner's namespace (vehicle parameter
 ``<full car>:<corner>``), or the modal controller replaces the four controllers.
 
-The model is :class:`~mr_suspension.core.full_car_stepper.FullCarPlantStepper`; the loop (start
+The model is :class:`~mr_suspension.sim.full_car_stepper.FullCarPlantStepper`; the loop (start
 handshake, real time and lock-step, re-sends, statistics) is
 :class:`~mr_suspension.nodes.plant_base.PlantBase`, the quarter-car plant's: a step waits for,
 or in real time takes the newest of, the damper forces of all four corners. Lock-step with
-``coupling_delay: 0`` is :func:`~mr_suspension.core.full_car_sim.simulate`'s step order.
+``coupling_delay: 0`` is :func:`~mr_suspension.sim.full_car_sim.simulate`'s step order.
 """
 
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64
 
 from mr_suspension.core import car_road
-from mr_suspension.core.full_car_stepper import FullCarPlantStepper
 from mr_suspension.nodes import cdr, common, contract as c
 from mr_suspension.nodes.plant import corner_templates
 from mr_suspension.nodes.plant_base import PlantBase
+from mr_suspension.sim.full_car_stepper import FullCarPlantStepper
 
 NODE = 'full_car_plant'
 

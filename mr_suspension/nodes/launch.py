@@ -26,9 +26,9 @@ import yaml
 
 from mr_suspension.core import car_road, road as rd
 from mr_suspension.core.metrics import rms
-from mr_suspension.core.simulator import simulate, summary
 from mr_suspension.nodes import contract as c
 from mr_suspension.nodes.common import corner_config, corner_vehicle, full_car_config
+from mr_suspension.sim.simulator import simulate, summary
 
 NODE_ORDER = ('recorder', 'controller', 'actuator', 'plant')
 STOP_ORDER = ('plant', 'controller', 'actuator', 'recorder')
@@ -293,7 +293,7 @@ def full_car_offline(config, road_spec, duration):
     working space and dynamic tyre load; body: RMS heave acceleration at the CG, pitch and
     roll rate.
     """
-    from mr_suspension.core.full_car_sim import simulate as simulate_car
+    from mr_suspension.sim.full_car_sim import simulate as simulate_car
     res = simulate_car(config, full_car_road(road_spec, duration, config))
     out = {'heave_acc_rms': rms(res.channel('a_z')),
            'pitch_rate_rms': rms(res.channel('w_pitch')),

@@ -4,7 +4,7 @@ Runs in the car's namespace. Subscribes to the body IMU (``body/imu``: vertical 
 at the centre of gravity, pitch and roll rates) and to every corner's sensors
 (``<corner>/imu/body``, ``imu/wheel``, ``stroke`` and, when the corners' inverse damper model
 reads it, ``coil_current``); never to ground truth. Runs
-:class:`~mr_suspension.core.full_car_stepper.ModalControllerStepper` (heave, pitch and roll
+:class:`~mr_suspension.sim.full_car_stepper.ModalControllerStepper` (heave, pitch and roll
 sky-hook, distributed to the four dampers, each turned into a current by its corner's estimation,
 inverse model and clip) once per sample and publishes every corner's ``current_command``.
 
@@ -35,11 +35,11 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64
 
 from mr_suspension.control.modal import MODAL_LAWS, ModalParams
-from mr_suspension.core.full_car_stepper import ModalControllerStepper
 from mr_suspension.nodes import cdr, common, contract as c, health
 from mr_suspension.nodes.controller import MOTION
 from mr_suspension.nodes.health import WARN
 from mr_suspension.nodes.sensor_watch import SensorWatch
+from mr_suspension.sim.full_car_stepper import ModalControllerStepper
 
 NODE = 'modal_controller'
 BODY = 'body'  # pending-sample key of the body IMU
@@ -87,39 +87,17 @@ class ModalControllerNode(Node):
         self.config = common.declare_full_car(self, d, modal=ModalParams(**gains))
         self.lockstep = common.declare(self, d, 'lockstep', 'Lock-step: run once per sample '
                                        'after the coil currents of the step before')
-        self.gravity = common.declare(self, d, 'gravity', 'Gravity removed from the '
-                                      'accelerometers [m/s^2]', 0.0, 20.0)
-        self.sensor_timeout = common.declare(self, d, 'sensor_timeout', 'Sensors older than '
-                                             'this trigger the fallback (of a corner: that '
-                                             'corner; the body IMU: all corners) [s]', 0.0005,
-                                             10.0)
-        self.fallback_current = common.declare(self, d, 'fallback_current', 'Safe fixed '
-                                               'current commanded in every fallback [A]', 0.0,
-                                               10.0)
-        frozen_timeout = common.declare(
-            self, d, 'frozen_timeout', 'Real time: a sensor whose value has not changed for '
-            'this long is frozen [s]', 0.001, 10.0)
-        frozen_requires_motion = common.declare(
-            self, d, 'frozen_requires_motion', 'Frozen only while another sensor changes (exact '
-            'simulated values at rest never change); false for real, noisy sensors')
-        recovery_time = common.declare(self, d, 'recovery_time', 'Inputs healthy this long '
-                                       'before leaving a fallback [s]', 0.0, 10.0)
-        diagnostic_period = common.declare(self, d, 'diagnostic_period', 'Period of the '
-                                           '/diagnostics status (also sent on every change) '
-                                           '[s]', 0.01, 60.0)
-        self.watchdog_period = common.declare(
-            self, d, 'watchdog_period', 'Real time: stale-sensor check period [s]; the '
-            'fallback starts within sensor_timeout + watchdog_period', 0.0005, 1.0)
-        coil_feedback = common.declare(
-            self, d, 'coil_feedback', 'Subscribe to each corner\'s coil_current: "auto" (if '
-            'the corners\' inverse model reads the field current), "on" or "off"')
-        if coil_feedback not in ('auto', 'on', 'off'):
-            raise ValueError('modal_controller: coil_feedback must be auto, on or off, got '
-                             f'{coil_feedback!r}')
-        recorders = common.declare(self, d, 'recorders', 'Lock-step: recorders to wait for on '
-                                   'current_command before the first command', 0, 10)
-        self.stats = common.Stats(common.declare(self, d, 'stats_file', 'Write run statistics '
-                                                 'as JSON here on exit ("" = off)'))
+        fs = common.declare_fail_safe(
+            self, d, NODE, timeout_scope=' (of a corner: that corner; the body IMU: all corners)',
+            coil_text="Subscribe to each corner's coil_current")
+        self.gravity = fs.gravity
+        self.sensor_timeout = fs.sensor_timeout
+        self.fallback_current = fs.fallback_current
+        frozen_timeout, frozen_requires_motion = fs.frozen_timeout, fs.frozen_requires_motion
+        self.watchdog_period = fs.watchdog_period
+        recovery_time, diagnostic_period = fs.recovery_time, fs.diagnostic_period
+        coil_feedback, recorders = fs.coil_feedback, fs.recorders
+        self.stats = common.Stats(fs.stats_file)
         self.stepper = ModalControllerStepper(self.config).warm_up()
         self.use_coil = coil_feedback == 'on' or \
             (coil_feedback == 'auto' and self.stepper.uses_field)

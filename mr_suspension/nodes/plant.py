@@ -7,7 +7,7 @@ force of the step that ended there.
 
 * Real time (``lockstep: false``): a wall timer at ``rate``; each tick advances one step with the
   newest damper force, moved to the present stroke rate along its tangent
-  (:meth:`~mr_suspension.core.stepper.PlantStepper.coupled`). If the force of the present sample
+  (:meth:`~mr_suspension.sim.stepper.PlantStepper.coupled`). If the force of the present sample
   has not arrived yet the force of the sample before is used: one sample of coupling latency,
   stable because the stiff part acts through the tangent inside the implicit step. With
   ``sensors_after_force`` (default) a sample's sensors and tyre force go out once its damper
@@ -26,9 +26,9 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64
 
 from mr_suspension.core import road as rd
-from mr_suspension.core.stepper import PlantStepper
 from mr_suspension.nodes import cdr, common, contract as c
 from mr_suspension.nodes.plant_base import parse_road, PlantBase
+from mr_suspension.sim.stepper import PlantStepper
 
 NODE = 'plant'
 __all__ = ['main', 'NODE', 'parse_road', 'PlantNode']

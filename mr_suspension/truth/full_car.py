@@ -1,8 +1,8 @@
 """Independent full-car truth: a rigid body on four corners, hidden effects on one corner.
 
 Written apart from the code it judges: no import of ``identification`` or of the core plant
-(``core.full_car``, ``core.full_car_sim``, ``core.full_car_batch``, ``core.quarter_car``,
-``core.damper``, ``core.driver``, ``core.simulator``, ``core.extended``). Each corner is a
+(``core.full_car``, ``sim.full_car_sim``, ``sim.full_car_batch``, ``core.quarter_car``,
+``core.damper``, ``core.driver``, ``sim.simulator``, ``core.extended``). Each corner is a
 :class:`~mr_suspension.truth.vehicle.VehicleTruth` (its strut law ``_strut``, current chain and
 Dahl friction, effect shapes and sensors are those of :mod:`~mr_suspension.truth.vehicle`);
 body values come from ``config/vehicles/lisa_full_car.yaml``, the damper and driver from the

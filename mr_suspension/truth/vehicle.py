@@ -1,6 +1,6 @@
 """Independent vehicle truth: a quarter car with hidden corner effects and realistic sensors.
 
-Written apart from the core plant (no import of ``core.quarter_car``, ``core.simulator``,
+Written apart from the core plant (no import of ``core.quarter_car``, ``sim.simulator``,
 ``core.damper``, ``core.driver`` or ``identification``): own integrator (RK4 with substeps
 chosen from a stiffness bound), own effect shapes. Values of the nominal corner are read from
 ``config/vehicles/city_car.yaml``, ``config/dampers/rd1005_bingham.yaml`` and

@@ -13,7 +13,7 @@ import numpy as np
 
 from mr_suspension.core import road as rd
 from mr_suspension.core.metrics import sine_gain
-from mr_suspension.core.simulator import simulate
+from mr_suspension.sim.simulator import simulate
 
 # Output, label: body acceleration, body displacement, working space, normalised tyre force.
 RESPONSES = (('acc', 'body acceleration gain [1/s^2]'), ('z_s', 'body amplitude gain [-]'),

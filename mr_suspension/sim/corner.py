@@ -1,6 +1,6 @@
 """The one corner builder: vehicle, damper, driver and a controller that knows its plant.
 
-Every entry point builds its :class:`~mr_suspension.core.simulator.CornerConfig` here: the
+Every entry point builds its :class:`~mr_suspension.sim.simulator.CornerConfig` here: the
 ``simulate``/``demo``/``tune`` commands (:mod:`mr_suspension.cli`), the node set
 (:func:`mr_suspension.nodes.common.corner_config`) and the evaluation
 (:func:`mr_suspension.evaluation.runner.build_config`). The controller always gets the plant
@@ -9,7 +9,7 @@ masses and stiffnesses for PDD, clipped optimal and the tyre-deflection estimate
 for the inverse model, the driver's current range), so a law cannot run with another car's
 masses or another damper's inverse.
 
-:func:`batch_metrics` wraps :func:`~mr_suspension.core.simulator.simulate_batch` so that its
+:func:`batch_metrics` wraps :func:`~mr_suspension.sim.simulator.simulate_batch` so that its
 metrics mean what :func:`~mr_suspension.core.metrics.ride_metrics` means (``ntf_min`` is the
 normalised minimum tyre force ``min F_t / F_t0``, ``tyre_force_min`` the force in N).
 Pure numerics: no ROS imports.
@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from mr_suspension.control.laws import ControllerParams, LAW_IDS
-from mr_suspension.core import config as cfg
 from mr_suspension.core.damper import law_id_of
 from mr_suspension.core.driver import DriverParams
 from mr_suspension.core.full_car import AXLES, CORNERS
 from mr_suspension.core.quarter_car import QuarterCarParams
-from mr_suspension.core.simulator import CornerConfig, simulate_batch
+from mr_suspension.sim import config as cfg
+from mr_suspension.sim.simulator import CornerConfig, simulate_batch
 
 
 def _is_path(value):
@@ -57,16 +57,13 @@ def load_vehicle(value):
 def load_damper(value):
     """Damper parameters from an object, a ``config/dampers`` name or YAML, or a ``model.json``.
 
-    A ``model.json`` is a damper fitted by ``mr-suspension diagnose`` (extended law), read and
-    validated by :func:`~mr_suspension.identification.model_io.load_fitted_model`; its current
-    dynamics are not used here (the driver set models them).
+    A ``model.json`` is a damper fitted by ``mr-suspension diagnose`` (extended law), read by
+    :func:`~mr_suspension.core.paramsets.load_damper`; its current dynamics are not used here
+    (the driver set models them).
     """
     if not isinstance(value, (str, Path)):
         law_id_of(value)  # raises ValueError for anything that is not a damper
         return value
-    if str(value).endswith('.json'):
-        from mr_suspension.identification.model_io import load_fitted_model
-        return load_fitted_model(str(value))[0]
     return cfg.load_damper(value)
 
 

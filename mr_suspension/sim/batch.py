@@ -14,9 +14,9 @@ one flat array, ``W`` a compile-time chunk width, so LLVM vectorises the loop ov
   and, for the force-tracking laws, the inverse damper model. Corners are grouped by (road,
   law, damper law, inverse-model law, estimation, delay) so that every chunk is
   branch-uniform; each phase of a step is its own loop over the chunk with the branch outside
-  it. It runs the one-corner operations (:func:`~mr_suspension.core.simulator.corner_loop`)
+  it. It runs the one-corner operations (:func:`~mr_suspension.sim.simulator.corner_loop`)
   in the same order without fastmath, so it gives the same numbers bit for bit (tested against
-  :func:`~mr_suspension.core.simulator.simulate` to a relative 1e-9).
+  :func:`~mr_suspension.sim.simulator.simulate` to a relative 1e-9).
 
 The driver's dead time is folded into the command delay in both: a delay and a first-order lag
 commute on an input that starts from rest, so one delay line replaces two ring buffers.

@@ -1,12 +1,12 @@
-"""Step-by-step pieces of :func:`~mr_suspension.core.full_car_sim.full_car_loop` for the nodes.
+"""Step-by-step pieces of :func:`~mr_suspension.sim.full_car_sim.full_car_loop` for the nodes.
 
-The full-car counterpart of :mod:`~mr_suspension.core.stepper`: the body and the four wheels
+The full-car counterpart of :mod:`~mr_suspension.sim.stepper`: the body and the four wheels
 (:class:`FullCarPlantStepper`) and the modal law (:class:`ModalControllerStepper`) hold their
 own arrays and run the simulator's jitted functions in its order, so that a lock-step run of
 the full-car plant with per-corner
-:class:`~mr_suspension.core.stepper.ActuatorStepper` and
-:class:`~mr_suspension.core.stepper.ControllerStepper` (or the modal stepper) reproduces
-:func:`~mr_suspension.core.full_car_sim.simulate` to round-off.
+:class:`~mr_suspension.sim.stepper.ActuatorStepper` and
+:class:`~mr_suspension.sim.stepper.ControllerStepper` (or the modal stepper) reproduces
+:func:`~mr_suspension.sim.full_car_sim.simulate` to round-off.
 
 The body IMU sits at the centre of gravity with ISO 8855 axes (x forward, y left, z up): its
 vertical acceleration (gravity removed here), pitch rate (about y, positive nose down) and
@@ -22,8 +22,8 @@ from mr_suspension.control import laws
 from mr_suspension.control.modal import modal_step, N_MODAL_STATE
 from mr_suspension.core import full_car as fc
 from mr_suspension.core.car_road import CarRoad
-from mr_suspension.core.full_car_sim import FullCarConfig
-from mr_suspension.core.stepper import RoadClock
+from mr_suspension.sim.full_car_sim import FullCarConfig
+from mr_suspension.sim.stepper import RoadClock
 
 N_CORNERS = fc.N_CORNERS
 
@@ -123,7 +123,7 @@ class FullCarPlantStepper(RoadClock):
     def coupled(self, i, f_m, c_m, v_m):
         """Force to apply at corner ``i`` now from ``f_m``, tangent ``c_m`` evaluated at ``v_m``.
 
-        As :meth:`~mr_suspension.core.stepper.PlantStepper.coupled`: first-order extrapolation
+        As :meth:`~mr_suspension.sim.stepper.PlantStepper.coupled`: first-order extrapolation
         along the tangent to the corner's present stroke rate (zero correction when the force
         belongs to the present sample).
         """
@@ -165,7 +165,7 @@ class ModalControllerStepper:
 
     ``step(imu, corners)`` takes the body IMU ``(a_z, pitch rate, roll rate)`` (gravity
     removed) and per corner ``(acc_s, acc_u, stroke, field)`` as
-    :meth:`~mr_suspension.core.stepper.ControllerStepper.step` does (velocity slots NaN: each
+    :meth:`~mr_suspension.sim.stepper.ControllerStepper.step` does (velocity slots NaN: each
     corner estimates its stroke rate from its sensors); returns the four current commands.
     """
 

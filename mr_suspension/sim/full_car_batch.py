@@ -1,6 +1,6 @@
 """Vectorised batch kernel of the full car: many cars at once, one SIMD lane per car.
 
-Struct-of-arrays like the quarter car's :mod:`~mr_suspension.core.batch`: a chunk holds ``W``
+Struct-of-arrays like the quarter car's :mod:`~mr_suspension.sim.batch`: a chunk holds ``W``
 cars; the corner phases (measurements and velocity estimation, the control law, the inverse
 damper model, command delay, Wonder Box and fluid lag, damper force, strut and tyre forces)
 run over ``L = 4 W`` corner lanes (corner ``i`` of car ``c`` at lane ``i W + c``, row ``r`` of
@@ -31,17 +31,17 @@ Bit for bit: ``full_car_step`` itself solves this way (generic loops), and every
 runs the one-car simulator's operations in the same order (the quarter car's exact damper and
 inverse-model helpers, divisions where it divides, no fastmath besides the rational ``tanh``
 the damper laws share), dropping only exact no-ops (products with ``T_i0 = 1``, the zero
-components of ``d_a``). So the metrics equal :func:`~mr_suspension.core.full_car_sim.simulate`'s
+components of ``d_a``). So the metrics equal :func:`~mr_suspension.sim.full_car_sim.simulate`'s
 exactly (tested to a relative 1e-9). That matters: the laws that invert the damper model make
 the closed loop chaotic, and a 1e-15 relative change of the road moves ``simulate``'s
 metrics by up to 1e-2 within seconds, so agreement "to round-off" would not be agreement.
 
 Covered: every corner law of :data:`~mr_suspension.control.laws.LAW_IDS` and the modal
 sky-hook (:mod:`~mr_suspension.control.modal`), each corner's velocity estimation, Wonder Box
-(rise/fall lag, dead time folded into the command delay as in :mod:`~mr_suspension.core.batch`)
+(rise/fall lag, dead time folded into the command delay as in :mod:`~mr_suspension.sim.batch`)
 and fluid lag, and the stateless affine-tanh damper laws (linear, smooth Bingham, seed 002's
 tanh) as plant and inverse model, without sensor noise or corner model options
-(:func:`eligible`); anything else takes :func:`~mr_suspension.core.full_car_sim.full_car_loop`.
+(:func:`eligible`); anything else takes :func:`~mr_suspension.sim.full_car_sim.full_car_loop`.
 """
 
 import math
@@ -53,12 +53,13 @@ from mr_suspension.control import laws
 from mr_suspension.control.febc import FEBC_TAU_MEAN
 from mr_suspension.control.inverse import INV_TOL
 from mr_suspension.control.modal import G_FHP, G_HEAVE, G_ROLL, modal_map
-from mr_suspension.core import batch, damper as dmp
-from mr_suspension.core.batch import _bingham, _est_consts, _tanh
+from mr_suspension.core import damper as dmp
 from mr_suspension.core.driver import (prepare, Q_AFALL, Q_ARISE, Q_FFALL, Q_FRISE, Q_ITOP,
                                        Q_NDEAD)
 from mr_suspension.core.full_car import N_CORNERS
 from mr_suspension.core.quarter_car import BASE_FIELDS
+from mr_suspension.sim import batch
+from mr_suspension.sim.batch import _bingham, _est_consts, _tanh
 
 W = 16  # cars per chunk
 L = N_CORNERS * W  # corner lanes per chunk
@@ -105,7 +106,7 @@ SB_ROWS = SB_ACC + N_BODY_ACC
 
 
 def eligible(config):
-    """Tell whether a :class:`~mr_suspension.core.full_car_sim.FullCarConfig` takes the kernel.
+    """Tell whether a :class:`~mr_suspension.sim.full_car_sim.FullCarConfig` takes the kernel.
 
     Its corners must be what the quarter car's exact kernel takes
     (:func:`batch.exact_eligible`): linear, Bingham or tanh dampers, which
@@ -1033,7 +1034,7 @@ def run(configs, road_index, roads_z, roads_zd, dt, wk, we):
     """Run full cars that :func:`eligible` accepts; returns their sums (cars x ``N_ACC``).
 
     ``roads_z``, ``roads_zd``: (roads x 4 x samples); the sums are laid out as
-    :func:`~mr_suspension.core.full_car_sim.full_car_loop`'s ``acc``. Cars are grouped by
+    :func:`~mr_suspension.sim.full_car_sim.full_car_loop`'s ``acc``. Cars are grouped by
     (road, law, body kind, estimation, damper and inverse laws, delays) so each chunk is
     branch-uniform, and groups are split so that every thread has work.
     """

@@ -1,6 +1,6 @@
 """Fixed-step offline simulator of the full car: four corners' control chains on one body.
 
-One step at ``t_n``, the quarter car's (:mod:`~mr_suspension.core.simulator`) for each corner:
+One step at ``t_n``, the quarter car's (:mod:`~mr_suspension.sim.simulator`) for each corner:
 
 1. each corner's measurements (its body point's and wheel's acceleration, stroke, stroke rate,
    body point and wheel velocity, coil current of the step before) go to its control law
@@ -26,13 +26,14 @@ import numpy as np
 from mr_suspension.control import laws
 from mr_suspension.control.modal import modal_map, modal_step, ModalParams, N_MODAL_STATE
 from mr_suspension.core import damper as dmp
-from mr_suspension.core import full_car as fc, full_car_batch
+from mr_suspension.core import full_car as fc
 from mr_suspension.core.car_road import CarRoad
 from mr_suspension.core.comfort import Comfort, comfort, K_RX, K_RY, we_sos
 from mr_suspension.core.driver import DRIVER_STATE_SIZE, driver_step, DriverParams
 from mr_suspension.core.metrics import sos_step
-from mr_suspension.core.simulator import _wk, CHANNELS, CornerConfig, DELAY_BUFFER
 from mr_suspension.core.validation import check_range
+from mr_suspension.sim import full_car_batch
+from mr_suspension.sim.simulator import _wk, CHANNELS, CornerConfig, DELAY_BUFFER
 
 BODY_CHANNELS = ('z', 'theta', 'phi', 'v_z', 'w_pitch', 'w_roll', 'a_z', 'alpha_pitch',
                  'alpha_roll')
@@ -98,7 +99,7 @@ class FullCarConfig:
         return replace(self, **changes)
 
     def corner(self, i):
-        """Return the :class:`~mr_suspension.core.simulator.CornerConfig` of corner ``i``.
+        """Return the :class:`~mr_suspension.sim.simulator.CornerConfig` of corner ``i``.
 
         Its car is the corner's quarter car (sprung mass: the static share), its controller
         the corner law with the corner's plant knowledge.
@@ -142,8 +143,8 @@ class FullCarResult:
     """Time histories of a full-car run (SI units).
 
     ``body``: steps x :data:`BODY_CHANNELS`; ``corners``: 4 x steps x
-    :data:`~mr_suspension.core.simulator.CHANNELS` (each corner as a quarter-car
-    :class:`~mr_suspension.core.simulator.SimResult` records it: ``z_s``, ``v_s``, ``a_s`` are
+    :data:`~mr_suspension.sim.simulator.CHANNELS` (each corner as a quarter-car
+    :class:`~mr_suspension.sim.simulator.SimResult` records it: ``z_s``, ``v_s``, ``a_s`` are
     the body point above the corner); ``acc``: the online sums of :func:`full_car_loop`
     (:meth:`metrics`).
     """
@@ -425,7 +426,7 @@ class FullCarMetrics:
 def kernel_of(config, fast=True):
     """Name the kernel :func:`simulate_batch` runs a car on: 'batch' or 'reference'.
 
-    'batch': :func:`~mr_suspension.core.full_car_batch.run` (cars as SIMD lanes, every corner
+    'batch': :func:`~mr_suspension.sim.full_car_batch.run` (cars as SIMD lanes, every corner
     law and the modal law with stateless affine-tanh dampers; metrics equal to
     :func:`simulate`'s to round-off); 'reference': :func:`full_car_loop`, one car per thread
     (any damper, sensor noise, model options).
@@ -439,7 +440,7 @@ def simulate_batch(configs, roads, road_index=None, fast=True):
     ``configs``: :class:`FullCarConfig` (same ``dt``); ``roads``: :class:`CarRoad` of equal
     length; ``road_index[c]``: the road car ``c`` drives (default: the first). Each car takes
     the fastest kernel that computes its :func:`simulate` result (:func:`kernel_of`): the
-    vectorised :mod:`~mr_suspension.core.full_car_batch`, or :func:`full_car_loop` one car per
+    vectorised :mod:`~mr_suspension.sim.full_car_batch`, or :func:`full_car_loop` one car per
     thread; ``fast=False`` forces the latter for every car.
     """
     configs = list(configs)

@@ -21,12 +21,13 @@ from numba import njit, prange
 import numpy as np
 
 from mr_suspension.control.laws import controller_step, ControllerParams, N_CTRL_STATE, N_MEAS
-from mr_suspension.core import batch, damper as dmp
+from mr_suspension.core import damper as dmp
 from mr_suspension.core.driver import DRIVER_STATE_SIZE, driver_step, DriverParams, prepare
 from mr_suspension.core.metrics import rms, sos_step, wk_sos
 from mr_suspension.core.quarter_car import CAR_G, CAR_MS, CAR_MU, N_STATE, plant_step
 from mr_suspension.core.quarter_car import QuarterCarParams, strut_motion, VS, VU, ZS, ZU
 from mr_suspension.core.validation import check_range
+from mr_suspension.sim import batch
 
 # Recorded channels of a single-corner run.
 CHANNELS = ('z_s', 'z_u', 'v_s', 'v_u', 'a_s', 'a_u', 'stroke', 'stroke_rate', 'f_d', 'f_t',
@@ -256,9 +257,9 @@ def _generic(configs, road_index, roads_z, roads_zd, dt, record):
 def kernel_of(config, fast=True, record=False):
     """Name the kernel :func:`simulate_batch` runs a corner on: 'affine', 'exact' or 'generic'.
 
-    'affine': :func:`~mr_suspension.core.batch.run` (affine-tanh law at constant current,
+    'affine': :func:`~mr_suspension.sim.batch.run` (affine-tanh law at constant current,
     reciprocals and fastmath: metrics equal to the one-corner run to about 1e-13); 'exact':
-    :func:`~mr_suspension.core.batch.run_exact` (any control law with estimation, driver and
+    :func:`~mr_suspension.sim.batch.run_exact` (any control law with estimation, driver and
     stateless affine-tanh damper and inverse model: the one-corner operations in the same
     order, so bit for bit the same numbers); 'generic': :func:`corner_loop` per thread. A corner
     with a model option on (:attr:`QuarterCarParams.options_on`) always takes 'generic'.

@@ -1,4 +1,4 @@
-"""Step-by-step pieces of :func:`~mr_suspension.core.simulator.corner_loop` for the ROS 2 nodes.
+"""Step-by-step pieces of :func:`~mr_suspension.sim.simulator.corner_loop` for the ROS 2 nodes.
 
 The offline simulator runs controller, driver, damper and plant in one jitted loop. The node set
 splits that loop into three objects that hold their own arrays and run the very same jitted
@@ -28,11 +28,11 @@ from mr_suspension.control import laws
 from mr_suspension.core import damper as dmp
 from mr_suspension.core import driver as drv
 from mr_suspension.core import quarter_car as qc
-from mr_suspension.core.simulator import DELAY_BUFFER
+from mr_suspension.sim.simulator import DELAY_BUFFER
 
 
 class ControllerStepper:
-    """Control law of a :class:`~mr_suspension.core.simulator.CornerConfig` one step at a time.
+    """Control law of a :class:`~mr_suspension.sim.simulator.CornerConfig` one step at a time.
 
     ``step(acc_s, acc_u, stroke, field)`` takes what a car's sensors give (body and wheel
     acceleration with gravity removed [m/s^2], stroke [m], measured current [A], NaN when
