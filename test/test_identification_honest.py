@@ -132,8 +132,9 @@ def test_force_lead_behind_a_dead_time_and_a_series_spring_is_found_along_their_
 
 
 @pytest.mark.parametrize('n, kwargs, k_range, rel', [
-    (19002, {'shape': 'algebraic', 'strength': 0.9, 'sensor_faults': ('no_velocity',),
-             'measured_current': False}, (5e4, 1.4e5), 0.05),
+    pytest.param(19002, {'shape': 'algebraic', 'strength': 0.9,
+                         'sensor_faults': ('no_velocity',), 'measured_current': False},
+                 (5e4, 1.4e5), 0.05, marks=pytest.mark.slow),
     (3000, {'shape': 'arctan', 'strength': 0.05, 'sensor_faults': (), 'measured_current': True},
      (2e7, 5e7), 0.15)])
 def test_a_spring_named_with_the_static_shape_where_a_loop_stood_for_it(n, kwargs, k_range,
@@ -391,7 +392,7 @@ def test_anti_alias_filter_is_judged_against_the_current_lag_it_draws():
     assert not {'current_lag', 'current_lag_asymmetric'} & set(res.causes)
 
 
-@pytest.mark.parametrize('seed', [3, 4])
+@pytest.mark.parametrize('seed', [3, pytest.param(4, marks=pytest.mark.slow)])
 def test_thermal_fade_in_a_12_s_record_is_testable_and_named(seed):
     """A strong thermal fade (truth integrator: heat from the dissipated power) in 12 s.
 
@@ -624,8 +625,8 @@ def test_new_partial_loop_finds_its_share_and_length(seed, shape, strength):
     assert not diagnose.partial_loop(['yield_shape'], 'series_stiffness')
 
 
-@pytest.mark.parametrize('seed, shape, strength', [(4, 'algebraic', 0.55),
-                                                   (7, 'bingham_tanh', 0.5)])
+@pytest.mark.parametrize('seed, shape, strength', [
+    pytest.param(4, 'algebraic', 0.55, marks=pytest.mark.slow), (7, 'bingham_tanh', 0.5)])
 def test_partial_loop_is_not_read_as_a_force_channel_delay(seed, shape, strength):
     """Truth: a Bouc-Wen loop carrying a quarter of the yield force, no sensor fault.
 
