@@ -16,7 +16,7 @@ resolve to the simpler one. Effects that the excitation cannot reveal are ``unte
 
 from concurrent.futures import ThreadPoolExecutor
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 import functools
 import os
 import warnings
@@ -2007,6 +2007,164 @@ def _loop_restarts(ds, final, stage, tick, k1_factors=(1,)):
                   'training_sse_ratio': round(best.sse / final.sse, 4)}
 
 
+@dataclass(frozen=True)
+class Selection:
+    """The selection's state, handed from stage to stage (each returns a new one).
+
+    ``ds``: the data the stage fits on (decimated for the search, then at the full rate);
+    ``base``: the baseline fit; ``final``: the extended model; ``chosen``: its causes;
+    ``steps``: every step taken (dicts, in order); ``drop_loss``: each cause's share of the
+    held-out MSE lost when it is dropped; ``tie``, ``shaped_on``: a yield shape that tied with
+    tanh and the model it was judged on (for the prediction hedge); ``beyond``: the step of a
+    cause sought beyond the selection's limit.
+    """
+
+    ds: object
+    base: object
+    final: object
+    chosen: list
+    steps: tuple = ()
+    drop_loss: dict = field(default_factory=dict)
+    tie: object = None
+    shaped_on: object = None
+    beyond: dict = None
+
+    def add(self, *steps, **changes):
+        """Return the state with ``changes`` made and the ``steps`` (not None) appended."""
+        return replace(self, steps=self.steps + tuple(st for st in steps if st is not None),
+                       **changes)
+
+
+@dataclass(frozen=True)
+class _Context:
+    """What every stage may read and none changes: data, candidates and settings."""
+
+    full: list
+    n_folds: int
+    outer: bool
+    search_rate: float
+    physics: list
+    fine_allowed: list
+    fits: dict
+    share: bool
+    delay_kept: bool
+    floor: object
+    tick: object
+
+
+def _stage_leading_force(s, c):
+    """Judge a delay kept beside physical causes again as a force lead."""
+    if not (c.delay_kept and any(e not in engine.SENSOR_EFFECTS for e in s.chosen)
+            and not s.final.delay < 0):  # a lead found already needs no second search
+        return s
+    steps, drop = list(s.steps), dict(s.drop_loss)
+    chosen, final = _leading_force(s.ds, s.chosen, s.final, c.fits, drop, steps, c.tick)
+    return replace(s, chosen=chosen, final=final, steps=tuple(steps), drop_loss=drop)
+
+
+def _stage_loop_share(s, c):
+    """Fit a named loop's share of the yield force, where the data can test it."""
+    if 'hysteresis' not in s.chosen or not c.share:
+        return s
+    final, chosen, step = _hysteresis_share(s.ds, s.final, s.chosen, c.physics, c.tick)
+    return s.add(step, final=final, chosen=chosen)
+
+
+def _stage_spring_loop_restarts(s, c):
+    """Restart a spring and a loop over k1 (they trade along several valleys)."""
+    if not (all(e in s.chosen for e in engine.SPRING_LOOP) and s.final.eta['k_series'] > 0):
+        return s
+    final, step = _loop_restarts(s.ds, s.final, 'spring and loop restarts over k1', c.tick,
+                                 engine.K1_STARTS)
+    return s.add(step, final=final)
+
+
+def _stage_single_loss(s, c):
+    """Give a single cause its gain over the baseline as its loss when dropped."""
+    if len(s.chosen) != 1:
+        return s
+    return replace(s, drop_loss={**s.drop_loss,
+                                 s.chosen[0]: fold_stats(s.final.test, s.base.test)[0]})
+
+
+def _stage_full_rate(s, c):
+    """Refit at the full rate; judge there what the search rate cannot resolve."""
+    if not c.search_rate:
+        return s
+    search = s.ds
+    ds = engine.Dataset(c.full, n_folds=c.n_folds, outer=c.outer)
+    drop = dict(s.drop_loss)
+    base, final, chosen = _full_rate(ds, s.base, s.final, s.chosen, drop, search, s.final,
+                                     c.tick)
+    s = replace(s, ds=ds, base=base, final=final, chosen=chosen, drop_loss=drop)
+    if not ds.dt_min < 0.75 * search.dt_min:
+        return s
+    start = final if chosen else base
+    # A low-pass always makes the force lag: judged only when a lagging force channel was
+    # kept (on clean records with noisy motion channels a low-pass of the regressors pays as
+    # smoothing of the input noise, not as a sensor).
+    lagging = 'channel_delay' in chosen and final.delay > 0
+    final, chosen, fine = _fine_timing(ds, start, chosen, c.fine_allowed, c.tick, lagging,
+                                       base)
+    # A delay found at the full rate does not start a screen of the physics again.
+    if any(f.get('added') not in (None, 'channel_delay') for f in fine):
+        final, chosen = _rescreen(ds, final, chosen, c.physics, fine, c.tick)
+    tie = shaped_on = None
+    if 'yield_shape' in c.physics:
+        final, chosen, tie = _shape_again(ds, final, chosen, fine, c.tick)
+        shaped_on = final
+    steps = s.steps + tuple(fine)
+    for e, loss in _fine_losses(fine).items():
+        if e in chosen:
+            drop[e] = loss
+    if 'hysteresis' in chosen:
+        # The loop's shape was chosen at the search rate, where its steep pre-yield branch
+        # spans a few samples, and before any full-rate timing or force-channel cause joined
+        # it: searched anew on the full-rate data.
+        final, step = _loop_restarts(ds, final, 'loop searched anew (full rate)', c.tick)
+        steps += (step,)
+        if 'channel_delay' in chosen:
+            final, chosen, step = _delay_or_loop(ds, final, chosen, c.tick)
+            steps += (step,)
+    return replace(s, final=final, chosen=chosen, steps=steps, drop_loss=drop, tie=tie,
+                   shaped_on=shaped_on)
+
+
+def _stage_spring_loop_as_shape(s, c):
+    """Judge a loop named beside or instead of a spring against the static yield shape."""
+    final, chosen, step = _spring_loop_as_shape(s.ds, s.base, s.final, s.chosen, c.physics,
+                                                c.tick)
+    return s.add(step, final=final, chosen=chosen)
+
+
+def _stage_gas_cubic(s, c):
+    """Try a named gas spring's cubic term (nested): kept where it pays."""
+    if 'gas_spring' not in s.chosen:
+        return s
+    final, step = _gas_cubic(s.ds, s.final, c.tick)
+    return s.add(step, final=final)
+
+
+def _stage_beyond_room(s, c):
+    """Seek a cause beyond the selection's limit where the error stays far above the floor."""
+    final, chosen, beyond = _beyond_room(s.ds, s.final, s.chosen, c.physics, c.floor(),
+                                         c.tick)
+    s = replace(s, final=final, chosen=chosen, beyond=beyond)
+    if beyond is None:
+        return s
+    drop = dict(s.drop_loss)
+    if 'added' in beyond:
+        drop[beyond['added']] = beyond['loss']
+    return s.add(beyond, drop_loss=drop)
+
+
+# The stages after the forward selection, its swaps and the backward check, in order: each
+# takes the Selection and returns the next (unchanged where its condition does not hold).
+STAGES = (_stage_leading_force, _stage_loop_share, _stage_spring_loop_restarts,
+          _stage_single_loss, _stage_full_rate, _stage_spring_loop_as_shape,
+          _stage_gas_cubic, _stage_beyond_room)
+
+
 def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_rate=SEARCH_RATE,
         outer=True, nominal_driver=None, keep_back=True):
     """Diagnose records; return a ``DiagnosisResult`` (see ``Diagnosis`` for the method).
@@ -2052,68 +2210,17 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     chosen, ambiguous, swaps = _swaps(ds, chosen, fits, singles, stage_amb, tick)
     drop_loss = {}
     chosen, final = backward(ds, chosen, fits, singles, drop_loss, tick=tick)
-    if (delay_kept and any(c not in engine.SENSOR_EFFECTS for c in chosen)
-            and not final.delay < 0):  # a lead found already needs no second search
-        chosen, final = _leading_force(ds, chosen, final, fits, drop_loss, steps, tick)
-    if 'hysteresis' in chosen and share:
-        final, chosen, share_step = _hysteresis_share(ds, final, chosen, physics, tick)
-        steps.append(share_step)
-    if all(e in chosen for e in engine.SPRING_LOOP) and final.eta['k_series'] > 0:
-        # A spring and a loop trade along several valleys: restarts over k1.
-        final, step = _loop_restarts(ds, final, 'spring and loop restarts over k1', tick,
-                                     engine.K1_STARTS)
-        steps.append(step)
-    if len(chosen) == 1:
-        drop_loss[chosen[0]] = fold_stats(final.test, base.test)[0]
-    final_search = final
-    ds_search = ds
-    tie = shaped_on = None
-    if search_rate:
-        ds = engine.Dataset(full, n_folds=n_folds, outer=outer)
-        base, final, chosen = _full_rate(ds, base, final, chosen, drop_loss, ds_search,
-                                         final_search, tick)
-        if ds.dt_min < 0.75 * ds_search.dt_min:
-            start = final if chosen else base
-            # A low-pass always makes the force lag: judged only when a lagging force channel
-            # was kept (on clean records with noisy motion channels a low-pass of the
-            # regressors pays as smoothing of the input noise, not as a sensor).
-            lagging = 'channel_delay' in chosen and final.delay > 0
-            final, chosen, fine = _fine_timing(ds, start, chosen, physics + sens + full_sensors,
-                                               tick, lagging, base)
-            # A delay found at the full rate does not start it (on a Bouc-Wen damper the
-            # screen then added a 3e8 N/m spring as a false cause).
-            if any(f.get('added') not in (None, 'channel_delay') for f in fine):
-                final, chosen = _rescreen(ds, final, chosen, physics, fine, tick)
-            if 'yield_shape' in physics:
-                final, chosen, tie = _shape_again(ds, final, chosen, fine, tick)
-                shaped_on = final
-            steps = tuple(steps) + tuple(fine)
-            for e, loss in _fine_losses(fine).items():
-                if e in chosen:
-                    drop_loss[e] = loss
-            if 'hysteresis' in chosen:
-                # The loop's shape was chosen at the search rate, where its steep pre-yield
-                # branch spans a few samples, and before any full-rate timing or
-                # force-channel cause joined it (a 2.4 ms force lead: unseen / floor
-                # 3.58 -> 2.43): searched anew on the full-rate data.
-                final, step = _loop_restarts(ds, final, 'loop searched anew (full rate)', tick)
-                steps += (step,)
-                if 'channel_delay' in chosen:
-                    final, chosen, step = _delay_or_loop(ds, final, chosen, tick)
-                    steps += (step,)
-    final, chosen, step = _spring_loop_as_shape(ds, base, final, chosen, physics, tick)
-    if step is not None:
-        steps = tuple(steps) + (step,)
-    if 'gas_spring' in chosen:
-        final, step = _gas_cubic(ds, final, tick)
-        steps = tuple(steps) + (step,)
+    ctx = _Context(full=full, n_folds=n_folds, outer=outer, search_rate=search_rate,
+                   physics=physics, fine_allowed=physics + sens + full_sensors, fits=fits,
+                   share=share, delay_kept=delay_kept, floor=floor_job, tick=tick)
+    sel = Selection(ds=ds, base=base, final=final, chosen=chosen, steps=tuple(steps),
+                    drop_loss=drop_loss)
+    for stage in STAGES:
+        sel = stage(sel, ctx)
+    ds, base, final, chosen = sel.ds, sel.base, sel.final, sel.chosen
+    steps, drop_loss, beyond = sel.steps, sel.drop_loss, sel.beyond
     floor_raw = floor_job()
-    final, chosen, beyond = _beyond_room(ds, final, chosen, physics, floor_raw, tick)
-    if beyond is not None:
-        steps = tuple(steps) + (beyond,)
-        if 'added' in beyond:
-            drop_loss[beyond['added']] = beyond['loss']
-    hedge = _hedge(ds, final if chosen else base, chosen, tie, shaped_on)
+    hedge = _hedge(ds, final if chosen else base, chosen, sel.tie, sel.shaped_on)
     if hedge is not None:
         tick('yield shape: prediction hedge')
     # Per-cause "alone" figures at the full rate: the effect's parameters from the final
