@@ -273,3 +273,27 @@ def test_corner_vehicle_of_a_full_car():
     with pytest.raises(ValueError, match='name one corner'):
         load_vehicle('lisa_full_car')
     assert math.isclose(cfg.car.corner(0).m_s * 2 + cfg.car.corner(2).m_s * 2, cfg.car.m_b)
+
+
+def test_lockstep_with_a_damper_and_driver_per_axle_equals_offline():
+    """Front and rear on other dampers and drivers: each corner's nodes take their axle's."""
+    sets = {'damper': 'rd1005_bingham, seed003_bingham', 'driver': 'wonder_box, ideal'}
+    with ros_context() as (ctx, ex, nodes):
+        plant, _, acts = full_car_in_process(ctx, ex, nodes, ROAD, 1.0, coupling_delay=0,
+                                             **sets)
+        assert [a.get_parameter('damper').value for a in acts] == \
+            ['rd1005_bingham'] * 2 + ['seed003_bingham'] * 2
+        assert common.spin_until(ex, lambda: plant.plant.done, 60.0)
+    cfg = common.full_car_config(controller='skyhook_onoff', **sets)
+    assert cfg.damper[0] is cfg.damper[1] and cfg.damper[2] != cfg.damper[0]
+    diffs = agreement(full_car_figures(plant), full_car_offline(cfg, ROAD, 1.0))
+    assert max(abs(d) for d in diffs.values()) < 1e-6
+    same = agreement(full_car_figures(plant), _offline(False, ROAD, 1.0))
+    assert max(abs(d) for d in same.values()) > 1e-3  # the rear dampers do matter
+
+
+@pytest.mark.parametrize('value', ['a, b, c', 'a,,b,c', ''])
+def test_a_set_per_corner_needs_one_two_or_four_names(value):
+    with pytest.raises(ValueError, match='front, rear'):
+        common.corner_sets(value)
+    assert common.corner_sets('a , b') == ('a', 'a', 'b', 'b')

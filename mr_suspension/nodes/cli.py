@@ -127,8 +127,11 @@ def register(subparsers):
     p.add_argument('--seed', type=int, default=1, help='random road seed')
     p.add_argument('--vehicle', default=None,
                    help='config/vehicles set (default city_car; --full-car: lisa_full_car)')
-    p.add_argument('--damper', default='rd1005_bingham', help='config/dampers set')
-    p.add_argument('--driver', default='wonder_box', help='config/drivers set')
+    p.add_argument('--damper', default='rd1005_bingham',
+                   help='config/dampers set (--full-car: also "front,rear" or four in corner '
+                        'order)')
+    p.add_argument('--driver', default='wonder_box',
+                   help='config/drivers set (--full-car: also "front,rear" or four)')
     p.add_argument('--controller', default=None,
                    help='config/controllers set (default skyhook_onoff; --modal: skyhook, the '
                         "corners' estimation and inverse model)")

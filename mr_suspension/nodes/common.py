@@ -263,16 +263,19 @@ def corner_config(vehicle='city_car', damper='rd1005_bingham', driver='wonder_bo
 def declare_full_car(node, defaults, modal=None):
     """Declare the parameter-set names and rate of a full-car node; return the FullCarConfig.
 
-    ``vehicle`` names a full-car set (body and axles); ``damper``, ``driver`` and
-    ``controller`` apply to all four corners (with ``modal``, a
+    ``vehicle`` names a full-car set (body and axles); ``damper`` and ``driver`` one set for
+    all four corners or one per axle or corner (:func:`corner_sets`); ``controller`` applies
+    to all four corners (with ``modal``, a
     :class:`~mr_suspension.control.modal.ModalParams`, the corner law gives each corner's
     estimation, inverse model and current range).
     """
     names = {}
     for kind, key, what in (
             ('vehicles', 'vehicle', 'full-car parameter set (body, front and rear corners)'),
-            ('dampers', 'damper', 'damper parameter set of all four corners'),
-            ('drivers', 'driver', 'driver parameter set of all four corners'),
+            ('dampers', 'damper', 'damper parameter set(s): one for all four corners, '
+             '"front, rear" or four in corner order, each'),
+            ('drivers', 'driver', 'driver parameter set(s): one for all four corners, '
+             '"front, rear" or four in corner order, each'),
             ('controllers', 'controller', 'controller parameter set of each corner')):
         names[key] = declare(node, defaults, key, f'{what}: a name in config/{kind} or a YAML '
                              'path')
@@ -295,9 +298,33 @@ def full_car_config(vehicle='lisa_full_car', damper='rd1005_bingham', driver='wo
         raise ValueError(f'vehicle {vehicle!r} is a quarter car (no front and rear corners); '
                          'the full car needs a full-car set, e.g. lisa_full_car')
     car = cfg.load_full_car(vehicle)
-    return FullCarConfig(car=car, damper=cn.load_damper(damper),
-                         driver=cn.load_driver(driver),
+    loaded = {}
+
+    def four(load, value, what):
+        out = []
+        for name in corner_sets(value, what):
+            if (what, name) not in loaded:
+                loaded[what, name] = load(name)
+            out.append(loaded[what, name])
+        return tuple(out)
+
+    return FullCarConfig(car=car, damper=four(cn.load_damper, damper, 'damper'),
+                         driver=four(cn.load_driver, driver, 'driver'),
                          controller=cn.load_controller(controller), modal=modal, dt=1.0 / rate)
+
+
+def corner_sets(value, what='damper'):
+    """Four parameter-set names, in corner order, from a full-car node's ``damper``/``driver``.
+
+    One name serves all four corners; ``"front, rear"`` one per axle; four names, comma
+    separated, one per corner (:data:`~mr_suspension.nodes.contract.CORNERS`).
+    """
+    names = [n.strip() for n in str(value).split(',')]
+    if all(names) and len(names) in (1, 2, 4):
+        return tuple(names * 4 if len(names) == 1 else
+                     (names[0], names[0], names[1], names[1]) if len(names) == 2 else names)
+    raise ValueError(f'{what} {value!r}: give one set for all corners, "front, rear", or four '
+                     f'in corner order ({", ".join(contract.CORNERS)})')
 
 
 def corner_vehicle(vehicle, corner):

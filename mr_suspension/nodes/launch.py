@@ -27,7 +27,8 @@ import yaml
 from mr_suspension.core import car_road, road as rd
 from mr_suspension.core.metrics import rms
 from mr_suspension.nodes import contract as c
-from mr_suspension.nodes.common import corner_config, corner_vehicle, full_car_config
+from mr_suspension.nodes.common import (corner_config, corner_sets, corner_vehicle,
+                                        full_car_config)
 from mr_suspension.sim.simulator import simulate, summary
 
 NODE_ORDER = ('recorder', 'controller', 'actuator', 'plant')
@@ -384,7 +385,10 @@ def run_full_car(out_dir, duration=3.0, road=FULL_CAR_ROAD, vehicle='lisa_full_c
         elif exe == 'modal_controller':
             p = dict(model, vehicle=vehicle, recorders=recorders)
         else:
-            p = dict(model, vehicle=corner_vehicle(vehicle, ns), recorders=recorders)
+            i = c.CORNERS.index(ns)
+            p = dict(model, vehicle=corner_vehicle(vehicle, ns), recorders=recorders,
+                     damper=corner_sets(damper, 'damper')[i],
+                     driver=corner_sets(driver, 'driver')[i])
         if coupling_delay is not None and exe in ('full_car_plant', 'actuator'):
             p['coupling_delay'] = int(coupling_delay)
         label = _label(name, ns)

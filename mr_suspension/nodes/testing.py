@@ -125,12 +125,15 @@ def full_car_in_process(ctx, ex, nodes, road, duration, controller=None, modal=F
 
     plant._advance = record
     vehicle = plant.get_parameter('vehicle').value
+    given = {k: plant.get_parameter(k).value for k in ('damper', 'driver')}
+    sets = {k: common.corner_sets(v, k) for k, v in given.items()}
     ctls, acts = [], []
     if modal:
         ctls.append(add(ex, nodes, ModalControllerNode(context=ctx, parameter_overrides=params(
-            **dict(model, **(modal_params or {}))))))
-    for corner in c.CORNERS:
+            **dict(model, **given, **(modal_params or {}))))))
+    for i, corner in enumerate(c.CORNERS):
         corner_p = dict(model, vehicle=common.corner_vehicle(vehicle, corner),
+                        damper=sets['damper'][i], driver=sets['driver'][i],
                         **(corner_params or {}))
         if not modal:
             ctls.append(add(ex, nodes, ControllerNode(
