@@ -35,8 +35,12 @@ the gap between the two unseen / floor figures is what input noise costs, the re
 model; the cause figures of that pass are printed beside (a cause named or missed only with
 noisy inputs is the inputs' doing).
 
+With ``--stages`` it counts, per stage after the backward check (``diagnose.STAGES``), the
+records whose extended model or causes that stage changed: what each stage pays for on the
+benchmark.
+
 Usage: ``python benchmarks/bench_diagnose.py [--cases 300] [--duration 12] [--jobs 2]
-[--outside 0]``.
+[--outside 0] [--stages]``.
 """
 
 import argparse
@@ -94,6 +98,44 @@ def _record(columns, name):
         return dataio.build_record(name, columns)
 
 
+_STAGE_LOG = []  # (stage, changed the model, changed the causes) of the case being diagnosed
+
+
+def watch_stages():
+    """Wrap ``diagnose.STAGES`` (once per process) so each case logs what each stage changed."""
+    if getattr(diagnose, '_stages_watched', False):
+        return
+
+    def watched(stage):
+        def run(s, c):
+            t = stage(s, c)
+            if t is not s:
+                _STAGE_LOG.append((stage.__name__.removeprefix('_stage_'),
+                                   t.final is not s.final, sorted(t.chosen) != sorted(s.chosen)))
+            return t
+        return run
+
+    diagnose.STAGES = tuple(watched(st) for st in diagnose.STAGES)
+    diagnose._stages_watched = True
+
+
+def summarise_stages(results):
+    """Per stage after the backward check: records whose model or causes it changed."""
+    rows = [r for r in results if 'stages' in r]
+    print(f'\n== stages after the backward check, over {len(rows)} diagnosed records '
+          '(model: the extended model changed; causes: the named set changed)')
+    seen = {st.__name__.removeprefix('_stage_'): [0, 0, []] for st in diagnose.STAGES}
+    for r in rows:
+        for name, model, causes in r['stages']:
+            entry = seen.setdefault(name, [0, 0, []])
+            entry[0] += bool(model)
+            entry[1] += bool(causes)
+            if causes:
+                entry[2].append(r['k'])
+    for name, (m, c, ks) in seen.items():
+        print(f'  {name:24s} model {m:4d}  causes {c:4d}  {"cases " + str(ks) if ks else ""}')
+
+
 def _unseen_scores(rec, unseen):
     """Fit ``rec``; return the fit, its unseen NRMSE (extended, baseline) and a flag.
 
@@ -149,8 +191,11 @@ def _causes(res):
 
 def run_case(job):
     """Diagnose one case; return a dict of outcomes (runs in a worker process)."""
-    family, k, effs, seed, duration, clean_inputs = job  # 'outside' is drawn as out-of-model
+    family, k, effs, seed, duration, clean_inputs, stages = job  # 'outside': out-of-model
     diagnose.JOBS = 1  # the cases run in parallel processes already
+    if stages:
+        watch_stages()
+    _STAGE_LOG.clear()
     t0 = time.time()
     if family == 'in-model':
         rec, truth = synthetic.make_record(effs, seed=seed, duration=duration)
@@ -184,6 +229,7 @@ def run_case(job):
         driver = case.driver_contribution if case.sensor['spec'].current == 'absent' else 0.0
     try:
         res, score, b_score, outside = _unseen_scores(rec, unseen)
+        changed = list(_STAGE_LOG)
         ci_ratio, ci_causes, ci_sensor = (
             _clean_inputs(seed, effs, duration) if clean_inputs and family == 'out-of-model'
             else (np.nan, None, None))
@@ -202,7 +248,8 @@ def run_case(job):
             'unseen_ratio_clean_inputs': ci_ratio, 'causes_clean_inputs': ci_causes,
             'sensor_clean_inputs': ci_sensor, 'seed': seed, 'ref_beats': ref_beats,
             'ref_gain': ref_gain, 'partly_by_reference': by_ref, 'partly_by_floor': by_floor,
-            'heldout': res.heldout['extended_nrmse'], 'seconds': time.time() - t0}
+            'heldout': res.heldout['extended_nrmse'], 'seconds': time.time() - t0,
+            **({'stages': changed} if stages else {})}
 
 
 # The truth's driver lag (at a command edge the force sample still reads the old current,
@@ -451,13 +498,16 @@ def main(argv=None):
     ap.add_argument('--outside', type=int, default=0,
                     help='cases of the outside family: an effect the catalogue lacks '
                          '(truth.rig.OUTSIDE), every other pair with a catalogue effect')
+    ap.add_argument('--stages', action='store_true',
+                    help='log, per record, which stages after the backward check changed the '
+                         'model or the causes, and print how often each did')
     args = ap.parse_args(argv)
-    ci = args.clean_inputs
-    jobs = [('out-of-model', k, e, args.seed * 100003 + k, args.duration, ci)
+    ci, st = args.clean_inputs, args.stages
+    jobs = [('out-of-model', k, e, args.seed * 100003 + k, args.duration, ci, st)
             for k, e in enumerate(case_list(args.cases, args.seed, truth_rig.EFFECTS))]
-    jobs += [('in-model', k, e, args.seed * 100003 + 50000 + k, args.duration, False)
+    jobs += [('in-model', k, e, args.seed * 100003 + 50000 + k, args.duration, False, st)
              for k, e in enumerate(case_list(args.in_model, args.seed + 1, engine.EFFECTS))]
-    jobs += [('outside', k, e, args.seed * 100003 + 70000 + k, args.duration, False)
+    jobs += [('outside', k, e, args.seed * 100003 + 70000 + k, args.duration, False, st)
              for k, e in enumerate(outside_list(args.outside, args.seed + 2))]
     t0 = time.time()
     results = []
@@ -479,6 +529,8 @@ def main(argv=None):
     summarise('out-of-model', results, strict=True)
     if args.outside:
         summarise_outside(results)
+    if args.stages:
+        summarise_stages(results)
     if not args.no_timing:
         timing()
 

@@ -112,6 +112,21 @@ def test_effect_free_record_gives_none():
     assert rep['baseline']['heldout_nrmse'] < 1.1 * case.floor_nrmse
 
 
+def test_a_stage_that_does_not_apply_returns_the_state_it_got():
+    """Stages are pure steps over the frozen Selection: no change where no condition holds."""
+    import dataclasses
+    sel = diagnose.Selection(ds=None, base=None, final=None, chosen=[], steps=({'stage': 'x'},))
+    ctx = diagnose._Context(full=[], n_folds=5, outer=True, search_rate=0.0, physics=[],
+                            fine_allowed=[], fits={}, share=False, delay_kept=False,
+                            floor=lambda: None, tick=lambda *a: None)
+    assert all(stage(sel, ctx) is sel for stage in diagnose.STAGES)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        sel.chosen = ['hysteresis']
+    later = sel.add(None, {'stage': 'y'}, chosen=['gas_spring'])
+    assert [s['stage'] for s in later.steps] == ['x', 'y'] and later.chosen == ['gas_spring']
+    assert sel.steps == ({'stage': 'x'},) and sel.chosen == []
+
+
 @pytest.mark.xfail(strict=True, reason=(
     'finding: the pair is named, but the model stays 1.2-1.4 noise floors on the inner folds '
     '(or a dead time is named too) on each of the 3 drawn dampers tried'))

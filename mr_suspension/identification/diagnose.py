@@ -2134,7 +2134,7 @@ def _stage_spring_loop_as_shape(s, c):
     """Judge a loop named beside or instead of a spring against the static yield shape."""
     final, chosen, step = _spring_loop_as_shape(s.ds, s.base, s.final, s.chosen, c.physics,
                                                 c.tick)
-    return s.add(step, final=final, chosen=chosen)
+    return s if step is None else s.add(step, final=final, chosen=chosen)
 
 
 def _stage_gas_cubic(s, c):
@@ -2149,9 +2149,9 @@ def _stage_beyond_room(s, c):
     """Seek a cause beyond the selection's limit where the error stays far above the floor."""
     final, chosen, beyond = _beyond_room(s.ds, s.final, s.chosen, c.physics, c.floor(),
                                          c.tick)
-    s = replace(s, final=final, chosen=chosen, beyond=beyond)
     if beyond is None:
         return s
+    s = replace(s, final=final, chosen=chosen, beyond=beyond)
     drop = dict(s.drop_loss)
     if 'added' in beyond:
         drop[beyond['added']] = beyond['loss']
