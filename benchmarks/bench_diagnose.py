@@ -35,9 +35,8 @@ the gap between the two unseen / floor figures is what input noise costs, the re
 model; the cause figures of that pass are printed beside (a cause named or missed only with
 noisy inputs is the inputs' doing).
 
-With ``--stages`` it counts, per stage after the backward check (``diagnose.STAGES``), the
-records whose extended model or causes that stage changed: what each stage pays for on the
-benchmark.
+With ``--stages`` it counts, per stage of the selection (``diagnose.STAGES``), the records
+whose extended model or causes that stage changed: what each check pays for on the benchmark.
 
 Usage: ``python benchmarks/bench_diagnose.py [--cases 300] [--duration 12] [--jobs 2]
 [--outside 0] [--stages]``.
@@ -120,9 +119,9 @@ def watch_stages():
 
 
 def summarise_stages(results):
-    """Per stage after the backward check: records whose model or causes it changed."""
+    """Per stage of the selection: records whose model or causes it changed."""
     rows = [r for r in results if 'stages' in r]
-    print(f'\n== stages after the backward check, over {len(rows)} diagnosed records '
+    print(f'\n== stages of the selection, over {len(rows)} diagnosed records '
           '(model: the extended model changed; causes: the named set changed)')
     seen = {st.__name__.removeprefix('_stage_'): [0, 0, []] for st in diagnose.STAGES}
     for r in rows:
@@ -499,8 +498,8 @@ def main(argv=None):
                     help='cases of the outside family: an effect the catalogue lacks '
                          '(truth.rig.OUTSIDE), every other pair with a catalogue effect')
     ap.add_argument('--stages', action='store_true',
-                    help='log, per record, which stages after the backward check changed the '
-                         'model or the causes, and print how often each did')
+                    help='log, per record, which stages of the selection changed the model or '
+                         'the causes, and print how often each did')
     args = ap.parse_args(argv)
     ci, st = args.clean_inputs, args.stages
     jobs = [('out-of-model', k, e, args.seed * 100003 + k, args.duration, ci, st)

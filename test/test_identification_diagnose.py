@@ -113,13 +113,14 @@ def test_effect_free_record_gives_none():
 
 
 def test_a_stage_that_does_not_apply_returns_the_state_it_got():
-    """Stages are pure steps over the frozen Selection: no change where no condition holds."""
+    """Checks are pure steps over the frozen Selection: no change where no condition holds."""
     import dataclasses
-    sel = diagnose.Selection(ds=None, base=None, final=None, chosen=[], steps=({'stage': 'x'},))
-    ctx = diagnose._Context(full=[], n_folds=5, outer=True, search_rate=0.0, physics=[],
-                            fine_allowed=[], fits={}, share=False, delay_kept=False,
-                            floor=lambda: None, tick=lambda *a: None)
-    assert all(stage(sel, ctx) is sel for stage in diagnose.STAGES)
+    sel = diagnose.Selection(ds=None, steps=({'stage': 'x'},))
+    ctx = diagnose._Context(full=[], n_folds=5, outer=True, search_rate=0.0, sensors=[],
+                            physics=[], fine_allowed=[], share=False, floor=lambda: None,
+                            tick=lambda *a: None)
+    assert all(stage(sel, ctx) is sel for stage in diagnose.CHECKS)
+    assert diagnose.STAGES == diagnose.SELECTION + diagnose.CHECKS
     with pytest.raises(dataclasses.FrozenInstanceError):
         sel.chosen = ['hysteresis']
     later = sel.add(None, {'stage': 'y'}, chosen=['gas_spring'])

@@ -2014,17 +2014,26 @@ class Selection:
     ``ds``: the data the stage fits on (decimated for the search, then at the full rate);
     ``base``: the baseline fit; ``final``: the extended model; ``chosen``: its causes;
     ``steps``: every step taken (dicts, in order); ``drop_loss``: each cause's share of the
-    held-out MSE lost when it is dropped; ``tie``, ``shaped_on``: a yield shape that tied with
-    tanh and the model it was judged on (for the prediction hedge); ``beyond``: the step of a
-    cause sought beyond the selection's limit.
+    held-out MSE lost when it is dropped. From the forward selection: ``fits`` (every model
+    fitted, by its effects), ``singles`` (each candidate alone on the baseline, and
+    ``parent0`` that baseline), ``delay_kept`` (a force-channel delay passed the sensor
+    stage), ``ambiguous`` (pairs the data cannot tell apart), ``swaps`` (ties resolved).
+    ``tie``, ``shaped_on``: a yield shape that tied with tanh and the model it was judged on
+    (for the prediction hedge); ``beyond``: the step of a cause sought beyond the limit.
     """
 
     ds: object
-    base: object
-    final: object
-    chosen: list
+    base: object = None
+    final: object = None
+    chosen: list = field(default_factory=list)
     steps: tuple = ()
     drop_loss: dict = field(default_factory=dict)
+    fits: dict = field(default_factory=dict)
+    singles: dict = field(default_factory=dict)
+    parent0: object = None
+    delay_kept: bool = False
+    ambiguous: list = field(default_factory=list)
+    swaps: dict = field(default_factory=dict)
     tie: object = None
     shaped_on: object = None
     beyond: dict = None
@@ -2043,22 +2052,50 @@ class _Context:
     n_folds: int
     outer: bool
     search_rate: float
+    sensors: list
     physics: list
     fine_allowed: list
-    fits: dict
     share: bool
-    delay_kept: bool
     floor: object
     tick: object
 
 
+def _stage_baseline(s, c):
+    """Fit the nominal model (the baseline)."""
+    base = engine.fit(s.ds, ())
+    c.tick('baseline')
+    return replace(s, base=base, final=base)
+
+
+def _stage_forward(s, c):
+    """Sensor stage, then forward selection up to the limit of physical causes."""
+    chosen, fits, singles, steps, amb, parent0 = _forward(s.ds, s.base, c.sensors, c.physics,
+                                                          c.tick, c.share)
+    return replace(s, base=fits[()], chosen=chosen, fits=fits, singles=singles,
+                   steps=s.steps + tuple(steps), ambiguous=amb, parent0=parent0,
+                   delay_kept=any(e in engine.SENSOR_EFFECTS for e in chosen))
+
+
+def _stage_swaps(s, c):
+    """Resolve tied candidates: swapped, joined or reported ambiguous."""
+    chosen, ambiguous, swaps = _swaps(s.ds, s.chosen, s.fits, s.singles, s.ambiguous, c.tick)
+    return replace(s, chosen=chosen, ambiguous=ambiguous, swaps=swaps)
+
+
+def _stage_backward(s, c):
+    """Drop every cause whose removal does not fail the rule; each cause's loss when dropped."""
+    drop = {}
+    chosen, final = backward(s.ds, s.chosen, s.fits, s.singles, drop, tick=c.tick)
+    return replace(s, chosen=chosen, final=final, drop_loss=drop)
+
+
 def _stage_leading_force(s, c):
     """Judge a delay kept beside physical causes again as a force lead."""
-    if not (c.delay_kept and any(e not in engine.SENSOR_EFFECTS for e in s.chosen)
+    if not (s.delay_kept and any(e not in engine.SENSOR_EFFECTS for e in s.chosen)
             and not s.final.delay < 0):  # a lead found already needs no second search
         return s
     steps, drop = list(s.steps), dict(s.drop_loss)
-    chosen, final = _leading_force(s.ds, s.chosen, s.final, c.fits, drop, steps, c.tick)
+    chosen, final = _leading_force(s.ds, s.chosen, s.final, s.fits, drop, steps, c.tick)
     return replace(s, chosen=chosen, final=final, steps=tuple(steps), drop_loss=drop)
 
 
@@ -2158,11 +2195,14 @@ def _stage_beyond_room(s, c):
     return s.add(beyond, drop_loss=drop)
 
 
-# The stages after the forward selection, its swaps and the backward check, in order: each
-# takes the Selection and returns the next (unchanged where its condition does not hold).
-STAGES = (_stage_leading_force, _stage_loop_share, _stage_spring_loop_restarts,
-          _stage_single_loss, _stage_full_rate, _stage_spring_loop_as_shape,
-          _stage_gas_cubic, _stage_beyond_room)
+# The selection: baseline, forward selection, ties and the backward check (SELECTION), then
+# the checks on what it chose (CHECKS), in order. Each stage takes the Selection and returns
+# the next; a check returns the state it got where its condition does not hold.
+SELECTION = (_stage_baseline, _stage_forward, _stage_swaps, _stage_backward)
+CHECKS = (_stage_leading_force, _stage_loop_share, _stage_spring_loop_restarts,
+          _stage_single_loss, _stage_full_rate, _stage_spring_loop_as_shape, _stage_gas_cubic,
+          _stage_beyond_room)
+STAGES = SELECTION + CHECKS
 
 
 def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_rate=SEARCH_RATE,
@@ -2200,25 +2240,15 @@ def run(records, effects=engine.ALL_EFFECTS, n_folds=5, progress=None, search_ra
     sens = [e for e in effects if e in engine.SENSOR_EFFECTS and e not in FULL_RATE_SENSORS]
     full_sensors = [e for e in effects if e in FULL_RATE_SENSORS]
     tick = progress or (lambda *a, **k: None)
-    base = engine.fit(ds, ())
-    tick('baseline')
-    share = 'hysteresis_share' not in notes
-    chosen, fits, singles, steps, stage_amb, parent0 = _forward(ds, base, sens, physics,
-                                                                tick, share)
-    base = fits[()]
-    delay_kept = any(c in engine.SENSOR_EFFECTS for c in chosen)
-    chosen, ambiguous, swaps = _swaps(ds, chosen, fits, singles, stage_amb, tick)
-    drop_loss = {}
-    chosen, final = backward(ds, chosen, fits, singles, drop_loss, tick=tick)
     ctx = _Context(full=full, n_folds=n_folds, outer=outer, search_rate=search_rate,
-                   physics=physics, fine_allowed=physics + sens + full_sensors, fits=fits,
-                   share=share, delay_kept=delay_kept, floor=floor_job, tick=tick)
-    sel = Selection(ds=ds, base=base, final=final, chosen=chosen, steps=tuple(steps),
-                    drop_loss=drop_loss)
+                   sensors=sens, physics=physics, fine_allowed=physics + sens + full_sensors,
+                   share='hysteresis_share' not in notes, floor=floor_job, tick=tick)
+    sel = Selection(ds=ds)
     for stage in STAGES:
         sel = stage(sel, ctx)
     ds, base, final, chosen = sel.ds, sel.base, sel.final, sel.chosen
     steps, drop_loss, beyond = sel.steps, sel.drop_loss, sel.beyond
+    singles, ambiguous, swaps, parent0 = sel.singles, sel.ambiguous, sel.swaps, sel.parent0
     floor_raw = floor_job()
     hedge = _hedge(ds, final if chosen else base, chosen, sel.tie, sel.shaped_on)
     if hedge is not None:
