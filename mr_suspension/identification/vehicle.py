@@ -1078,39 +1078,65 @@ def _step(effect, child, parent, stage):
             'eta': {k: v for k, v in child.eta.items() if k != 'chain'}}
 
 
-def select(P, effects, untestable, progress=None):
-    """Forward selection with backward check on the inner folds (rig diagnose's rule)."""
-    rows = P.search_rows
-    tick = progress or (lambda label: None)
+@dataclass(frozen=True)
+class _CarContext:
+    """What every stage of the car's selection reads: the prepared data and the candidates."""
+
+    P: object
+    effects: tuple
+    untestable: dict
+    tick: object
+
+    @property
+    def rows(self):
+        """The rows the selection fits on (the search rate)."""
+        return self.P.search_rows
+
+
+def _car_baseline(s, c):
+    """Fit the nominal corner (its baseline terms refined)."""
+    P, rows = c.P, c.rows
     base = refine(P, evaluate(P, (), base_eta(P.nominal, P.coil), rows), rows)
-    tick('baseline')
-    steps, ambiguous = [], []
-    parent = base
+    c.tick('baseline')
+    return replace(s, base=base, final=base, chosen=base.effects)
+
+
+def _car_sensors(s, c):
+    """Judge the IMU timing first, like the rig's fine timing (fold t >= T_FINE)."""
+    P, rows = c.P, c.rows
+    parent, steps = s.final, list(s.steps)
     for e in SENSOR_EFFECTS:
-        if e in effects:
+        if e in c.effects:
             child = search(P, parent, e, rows)
             steps.append(_step(e, child, parent, 'sensor'))
-            tick(e)
+            c.tick(e)
             size = float(np.std(predict(P, child)[rows] - predict(P, parent)[rows]))
             steps[-1]['contribution_over_noise'] = size / P.imu_noise
-            # A timing offset is judged like the rig's fine timing (fold t >= T_FINE), not by
-            # materiality: a half-sample offset is small per sample yet everywhere.
-            # At the grid's edge (2 ms) it is a physical lag (top mount, current), not timing.
+            # Not judged by materiality: a half-sample offset is small per sample yet
+            # everywhere. At the grid's edge (2 ms) it is a physical lag (top mount, current),
+            # not timing.
             edge = abs(child.eta.get(e, 0.0)) >= 0.002 - 1e-9
             if steps[-1]['accepted'] and steps[-1]['t'] >= diagnose.T_FINE and not edge:
                 parent = child
             else:
                 steps[-1]['accepted'] = False
+    return replace(s, final=parent, chosen=parent.effects, steps=tuple(steps))
+
+
+def _car_forward(s, c):
+    """Forward selection up to MAX_CAUSES physical causes (physical, resolved, material)."""
+    P, rows, effects = c.P, c.rows, c.effects
+    parent, steps, ambiguous = s.final, list(s.steps), list(s.ambiguous)
     while len([e for e in parent.effects if e in PHYSICS]) < MAX_CAUSES:
         cands = [e for e in PHYSICS if e in effects and e not in parent.effects
-                 and e not in untestable and diagnose.compatible(parent.effects, e, EXCLUSIVE)]
+                 and e not in c.untestable and diagnose.compatible(parent.effects, e, EXCLUSIVE)]
         if not cands:
             break
         kids = {}
         for e in cands:
             kids[e] = search(P, parent, e, rows)
             steps.append(_step(e, kids[e], parent, f'forward {len(parent.effects)}'))
-            tick(e)
+            c.tick(e)
         acc = [e for e in cands if diagnose.accepted(kids[e].test, parent.test)]
         for e in [e for e in acc if not physical(kids[e], e)]:
             acc.remove(e)
@@ -1143,8 +1169,14 @@ def select(P, effects, untestable, progress=None):
                 ambiguous.append((best, other))
         parent = refine(P, kids[best], rows, ('v_y',))
         parent.cvr = evaluate(P, parent.effects, parent.eta, rows).cvr
-    # Backward check: drop a cause whose removal is not rejected by the same rule, or whose
-    # coefficient turned unphysical once later causes joined.
+    return replace(s, final=parent, chosen=parent.effects, steps=tuple(steps),
+                   ambiguous=ambiguous)
+
+
+def _car_backward(s, c):
+    """Drop a cause whose removal the rule does not reject, or that turned unphysical."""
+    P, rows = c.P, c.rows
+    parent, steps = s.final, list(s.steps)
     changed = True
     while changed and parent.effects:
         changed = False
@@ -1156,8 +1188,13 @@ def select(P, effects, untestable, progress=None):
                 parent = red
                 changed = True
                 break
-    # The symmetric lag is nested in the asymmetric one: the asymmetric one is named only
-    # where it pays over the symmetric one by the same rule (either way round).
+    return replace(s, final=parent, chosen=parent.effects, steps=tuple(steps))
+
+
+def _car_nested_lag(s, c):
+    """Name the asymmetric lag only where it pays over the symmetric one (either way round)."""
+    P, rows, effects = c.P, c.rows, c.effects
+    parent, steps = s.final, list(s.steps)
     if 'current_lag' in parent.effects and 'current_lag_asymmetric' in effects:
         red = _without(P, parent, 'current_lag', rows)
         up = search(P, red, 'current_lag_asymmetric', rows)
@@ -1172,15 +1209,37 @@ def select(P, effects, untestable, progress=None):
         if not diagnose.accepted(parent.test, down.test) and resolved(down, 'current_lag',
                                                                       P.dt):
             parent = down
-    # Final polish of every nonlinear parameter (a coordinate sweep, then a joint
-    # Nelder-Mead; training error).
+    return replace(s, final=parent, chosen=parent.effects, steps=tuple(steps))
+
+
+def _car_polish(s, c):
+    """Polish every nonlinear parameter (a coordinate sweep, then a joint Nelder-Mead)."""
+    P, rows, parent = c.P, c.rows, s.final
     keys = [k for k in parent.eta if k not in FIXED_ETA]
     parent = refine(P, parent, P.full_rows, ['v_y'] + [k for k in keys if k != 'v_y'])
     parent = polish(P, parent, P.full_rows)
     mount_refresh(P, parent, P.full_rows)
     parent.cvr = evaluate(P, parent.effects, parent.eta, rows).cvr
-    ambiguous = [p for p in ambiguous if p[0] in parent.effects]
-    return base, parent, steps, ambiguous
+    ambiguous = [p for p in s.ambiguous if p[0] in parent.effects]
+    return replace(s, final=parent, chosen=parent.effects, ambiguous=ambiguous)
+
+
+# The car's selection, stage by stage over the rig's state (``diagnose.Selection``).
+CAR_STAGES = (_car_baseline, _car_sensors, _car_forward, _car_backward, _car_nested_lag,
+              _car_polish)
+
+
+def select(P, effects, untestable, progress=None):
+    """Forward selection with backward check on the inner folds (the rig's rule).
+
+    Runs :data:`CAR_STAGES` over a ``diagnose.Selection``; returns ``(baseline, final fit,
+    steps, ambiguous pairs)``.
+    """
+    c = _CarContext(P, tuple(effects), untestable, progress or (lambda label: None))
+    s = diagnose.Selection(ds=P)
+    for stage in CAR_STAGES:
+        s = stage(s, c)
+    return s.base, s.final, list(s.steps), list(s.ambiguous)
 
 
 def baseline_aliases(P, final, effects, rows):
