@@ -145,9 +145,6 @@ def load_damper(name):
         elif str(path).endswith('.json'):
             raise ValueError(f'{path}: not a fitted model file (no "damper" block); give the '
                              'model.json written by mr-suspension diagnose')
-        if not isinstance(data, dict):
-            raise ValueError(f'{path}: "damper" must be a mapping of parameters, got '
-                             f'{type(data).__name__}')
         return damper_from_dict(data, source=path)
     return build_set('dampers', name, make)
 

@@ -1098,7 +1098,7 @@ def _car_baseline(s, c):
     P, rows = c.P, c.rows
     base = refine(P, evaluate(P, (), base_eta(P.nominal, P.coil), rows), rows)
     c.tick('baseline')
-    return replace(s, base=base, final=base, chosen=base.effects)
+    return replace(s, base=base, final=base)
 
 
 def _car_sensors(s, c):
@@ -1120,7 +1120,7 @@ def _car_sensors(s, c):
                 parent = child
             else:
                 steps[-1]['accepted'] = False
-    return replace(s, final=parent, chosen=parent.effects, steps=tuple(steps))
+    return replace(s, final=parent, steps=tuple(steps))
 
 
 def _car_forward(s, c):
@@ -1169,8 +1169,7 @@ def _car_forward(s, c):
                 ambiguous.append((best, other))
         parent = refine(P, kids[best], rows, ('v_y',))
         parent.cvr = evaluate(P, parent.effects, parent.eta, rows).cvr
-    return replace(s, final=parent, chosen=parent.effects, steps=tuple(steps),
-                   ambiguous=ambiguous)
+    return replace(s, final=parent, steps=tuple(steps), ambiguous=ambiguous)
 
 
 def _car_backward(s, c):
@@ -1188,7 +1187,7 @@ def _car_backward(s, c):
                 parent = red
                 changed = True
                 break
-    return replace(s, final=parent, chosen=parent.effects, steps=tuple(steps))
+    return replace(s, final=parent, steps=tuple(steps))
 
 
 def _car_nested_lag(s, c):
@@ -1209,7 +1208,7 @@ def _car_nested_lag(s, c):
         if not diagnose.accepted(parent.test, down.test) and resolved(down, 'current_lag',
                                                                       P.dt):
             parent = down
-    return replace(s, final=parent, chosen=parent.effects, steps=tuple(steps))
+    return replace(s, final=parent, steps=tuple(steps))
 
 
 def _car_polish(s, c):
@@ -1221,7 +1220,7 @@ def _car_polish(s, c):
     mount_refresh(P, parent, P.full_rows)
     parent.cvr = evaluate(P, parent.effects, parent.eta, rows).cvr
     ambiguous = [p for p in s.ambiguous if p[0] in parent.effects]
-    return replace(s, final=parent, chosen=parent.effects, ambiguous=ambiguous)
+    return replace(s, final=parent, ambiguous=ambiguous)
 
 
 # The car's selection, stage by stage over the rig's state (``diagnose.Selection``).

@@ -118,7 +118,7 @@ def yaml_path():
     env = os.environ.get('MR_SUSPENSION_MSG_DEFS')
     if env:
         return Path(env) / 'topics.yaml'
-    from mr_suspension.sim.config import share_dir  # source tree, ament index, <prefix>/share
+    from mr_suspension.core.paramsets import share_dir  # source, ament index, <prefix>/share
     return share_dir('msg_defs') / 'topics.yaml'
 
 

@@ -372,6 +372,7 @@ def run_full_car(out_dir, duration=3.0, road=FULL_CAR_ROAD, vehicle='lisa_full_c
     model = {'damper': damper, 'driver': driver, 'controller': controller, 'rate': float(rate),
              'lockstep': bool(lockstep)}
     recorders = int(record)
+    sets = {k: corner_sets(v, k) for k, v in (('damper', damper), ('driver', driver))}
     nodes = full_car_nodes(modal, record)
     params = {}
     for exe, name, ns in nodes:
@@ -387,8 +388,7 @@ def run_full_car(out_dir, duration=3.0, road=FULL_CAR_ROAD, vehicle='lisa_full_c
         else:
             i = c.CORNERS.index(ns)
             p = dict(model, vehicle=corner_vehicle(vehicle, ns), recorders=recorders,
-                     damper=corner_sets(damper, 'damper')[i],
-                     driver=corner_sets(driver, 'driver')[i])
+                     damper=sets['damper'][i], driver=sets['driver'][i])
         if coupling_delay is not None and exe in ('full_car_plant', 'actuator'):
             p['coupling_delay'] = int(coupling_delay)
         label = _label(name, ns)
