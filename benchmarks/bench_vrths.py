@@ -64,18 +64,22 @@ def main():
                        ref.get(f'{key}_nrmse')))
     print(_row(f'headline ({ho.get("headline", "outer")})', rep['baseline']['heldout_nrmse'],
                rep['extended']['heldout_nrmse'], ref.get('heldout_nrmse')))
-    print(_row('earthquake record', v['baseline_nrmse'], v['extended_nrmse'],
+    print(_row('earthquake record, as selected', v['baseline_nrmse'], v['selected_nrmse'],
                v.get('reference_nrmse')))
+    print(_row(f'earthquake record, handed on ({v["model"]}, cross-fitted)',
+               v['baseline_nrmse'], v['extended_nrmse'], None))
     print()
-    print(f'gain on the sine tests {rep["gain"]:.1%}, on the earthquake record '
-          f'{v["gain"]:.1%}; {100 * v["excluded_share"]:.1f} % of the earthquake samples '
-          'outside the fitted domain')
+    print(f'gain on the sine tests {rep["gain"]:.1%}; on the earthquake record '
+          f'{v["selected_gain"]:.1%} as selected, {v["gain"]:.1%} handed on (the halves chose '
+          f'{v["choices"][0]} and {v["choices"][1]}); {100 * v["excluded_share"]:.1f} % of '
+          'the earthquake samples outside the fitted domain')
     for line in v['domain']:
         print(f'  {line}')
     causes = ', '.join(c['effect'] for c in rep['causes']) or 'none'
-    print(f'verdict {rep["verdict"]}; causes {causes}')
-    for e, n in v['single_effect_nrmse'].items():
-        print(f'  earthquake with {e} alone: {n:.4f}')
+    print(f'verdict {rep["verdict"]}; causes {causes}; not transferring '
+          f'{", ".join(v["dropped"]) or "none"}')
+    for name, n in v['candidates_nrmse'].items():
+        print(f'  earthquake, {name}: {n:.4f}')
 
 
 if __name__ == '__main__':

@@ -19,17 +19,17 @@ the BDF2 balance ``F_d(u) = a F_d,n-1 - b F_d,n-2 + beta k1 dt (v - u)`` (variab
 ``w = dt_n / dt_n-1``: ``a = (1 + w)^2 / (1 + 2 w)``, ``b = w^2 / (1 + 2 w)``,
 ``beta = (1 + w) / (1 + 2 w)``; 4/3, 1/3, 2/3 at a constant step; backward Euler on the
 first step and when ``w > 2.4``, where variable-step BDF2 stops being zero-stable).
-Backward Euler, used before, advances the spring's force by half a step
-(``(1 - z^-1) / dt ~ s exp(-s dt / 2)``), which a fit read as a force-channel delay of half a
+Backward Euler would advance the spring's force by half a step
+(``(1 - z^-1) / dt ~ s exp(-s dt / 2)``), which a fit reads as a force-channel delay of half a
 sample on records with a soft spring; BDF2 is second order and, unlike the trapezoidal rule,
 damps stiff springs instead of ringing. Every effect is off at its
 neutral value: ``i_s = 0``, ``x_h = 0``, ``k1 = 0``, ``kg1 = kg2 = kg3 = 0``, ``kappa = 0``,
 ``rho = 0``. The hysteretic state is the normalised Bouc-Wen state (Wen 1976, Spencer et al.
 1997: ``|z| <= 1``, pre-yield length ``x_h``, exponent ``n_h >= 1``, ``r_h = gamma / (beta +
 gamma)`` shapes the unloading branch); ``n_h = 1, r_h = 0, w_h = 1`` is the Dahl model
-``dz/dx_d = (1 - z sgn u) / x_h`` used before. The loop is rate-independent: its state follows
+``dz/dx_d = (1 - z sgn u) / x_h``. The loop is rate-independent: its state follows
 the element's stroke ``d = (u_n-1 + u_n) dt / 2`` over the step (trapezoid; split at a
-reversal inside the step; ``u_n dt`` ran the loop half a step ahead of the motion). In one
+reversal inside the step; ``u_n dt`` would run the loop half a step ahead of the motion). In one
 direction ``zeta = z sgn d`` obeys the autonomous ``dzeta/dxi = g(zeta)``, ``xi = |x_d| /
 x_h``, so ``zeta+ = zeta + Z(xi0 + |d| / x_h) - Z(xi0)`` with ``Z`` the solution from
 ``zeta = -1`` tabulated once per parameter set (RK4, cubic Hermite look-up, ``bw_table``) and

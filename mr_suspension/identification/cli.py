@@ -326,8 +326,13 @@ def summary_text(rep):
         v = rep['validation']
         ref_v = (f', learned reference {v["reference_nrmse"]:.4f}'
                  if v.get('reference_nrmse') is not None else '')
-        lines.append(f'validation NRMSE baseline {v["baseline_nrmse"]:.4f} -> extended '
-                     f'{v["extended_nrmse"]:.4f} (gain {v["gain"]:.1%}){ref_v}')
+        lines.append(f'validation NRMSE baseline {v["baseline_nrmse"]:.4f} -> extended as '
+                     f'selected {v["selected_nrmse"]:.4f} (gain {v["selected_gain"]:.1%}); '
+                     f'handed on ({v["model"]}, cross-fitted) {v["extended_nrmse"]:.4f} '
+                     f'(gain {v["gain"]:.1%}){ref_v}')
+        if v['dropped']:
+            lines.append('  not transferring to the validation records (left out of '
+                         'model.json): ' + ', '.join(v['dropped']))
         for line in v.get('domain', ()):
             lines.append(f'  outside the fitted domain: {line}')
     return '\n'.join(lines)

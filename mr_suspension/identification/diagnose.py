@@ -1056,9 +1056,9 @@ def _hysteresis_share(ds, final, chosen, physics, tick):
 
     ``y = (1 - w_h) S(u) + w_h z``: the selection fits the loop with ``w_h = 1`` (the loop
     replaces the static yield curve) where the share is not testable: there a share searched
-    in every loop candidate made the loop win on the vrths sine tests and cut the earthquake
-    validation gain from 18 to 1 % (docs/diagnose.md), so the share is freed here, on top of
-    a loop the data already named, and kept by the selection's rule on the inner folds. Where
+    in every loop candidate lets a loop bend to the fitted programme's reversals and win on
+    them without transferring to other inputs, so the share is freed here, on top of a loop
+    the data already named, and kept by the selection's rule on the inner folds. Where
     it is testable every loop candidate is fitted with its share too and keeps it where it
     pays (``_loop_candidate``, ``_lagging_force_pays``); this refit then only polishes it.
     With a share below 1 the static part ``S`` is drawn again, so its own shape
@@ -1514,9 +1514,8 @@ def _gas_cubic(ds, final, tick):
     selection's bar with it), so the selection fits the quadratic and the cubic is freed here,
     kept by the full-rate stages' rule on the inner folds (``_pays`` at ``T_FINE``: the term
     acts at the ends of the stroke, so the blocks where it changes the force carry its
-    evidence). At the selection's ``T_MIN`` the vrths sine tests took it at a 6 % gain, fold
-    t 2.35, with no gain on the untouched outer blocks (0.526 -> 0.523) and the earthquake
-    record's validation gain down from 0.311 to 0.285.
+    evidence); at the selection's ``T_MIN`` a term that acts on a few blocks passes on fold
+    noise without a gain on untouched data.
     Returns ``(final, step record)``.
     """
     child = engine.fit(ds, tuple(final.effects), start_eta={**final.eta, 'gas_cubic': 1.0},

@@ -4,16 +4,13 @@ NRMSE = RMS(measured - predicted) / std(measured force), on held-out blocks (cro
 or on separate validation records; ``gain = 1 - NRMSE_extended / NRMSE_baseline``.
 """
 
-import copy
 import json
 from pathlib import Path
 import time
 
 import numpy as np
 
-from mr_suspension.identification import catalogue, diagnose, engine, model_io, reference
-
-TRANSFER_LOSS = 0.05  # a cause whose removal lowers a validation NRMSE by this share: reported
+from mr_suspension.identification import catalogue, diagnose, engine, model_io, reference, transfer
 
 BASELINE_MODEL = ('F = F0 + (c0 + c1 i) v + (fy0 + fy1 i) tanh(v / v_y), i = command through '
                   'the static driver map (seed 003 eq. 5.2)')
@@ -200,60 +197,39 @@ def build(res, records, validate=(), elapsed=None):
     if res.hedge is not None:
         extra['hedge'] = model_io.hedge_dict(res.hedge.params(), res.hedge.dynamics(),
                                              res.hedge.effects)
+    if validate:
+        val = transfer.validate(res, validate, damper_causes)
+        report['validation'] = validation(val)
+        if val.model != transfer.EXTENDED:
+            # The model handed on is the one that transfers to the validation programme.
+            handed = val.fits[0]
+            ext_params, ext_dyn = handed.params(), handed.dynamics()
+            extra.pop('hedge', None)
+            extra['heldout_nrmse'] = None
+            extra['transfer'] = {'validated_on': list(val.records), 'model': val.model,
+                                 'dropped': list(val.dropped),
+                                 'validation_nrmse': val.extended_nrmse,
+                                 'selected_effects': list(damper_causes)}
+            damper_causes = list(val.causes)
     model = model_io.model_dict(ext_params, ext_dyn, damper_causes, kinds[0],
                                 [r.name for r in records], extra)
-    if validate:
-        report['validation'] = validation(res, validate, damper_causes)
     return report, model
 
 
-def validation(res, validate, damper_causes=()):
-    """Figures on records never used in the fit, inside the fitted domain only.
-
-    Every validation record is checked against the fitted domain (``diagnose.domain_lines``);
-    its flagged stretches are left out of the figures and listed one line per kind.
-    """
-    keep, lines, excluded = [], [], 0
-    for r in validate:
-        chk, found = diagnose.domain_lines(res, r)
-        m = np.asarray(r.mask, dtype=bool)
-        if chk is not None and chk.mask.any():
-            excluded += int(np.count_nonzero(m & ~chk.mask))
-            m = m & chk.mask
-        keep.append(m)
-        lines += found
-    used = sum(int(np.count_nonzero(m)) for m in keep)
-    vstd = float(np.std(np.concatenate([r.force[m] for r, m in zip(validate, keep)])))
-
-    def vn(fits):
-        err = [(r.force - diagnose.predict_force(r, fits, channel=False))[m]
-               for r, m in zip(validate, keep)]
-        return _nrmse(float(np.mean(np.concatenate(err) ** 2)), vstd)
-
-    vb = vn((res.baseline,))
-    ve = vn(res.predictors)
-    vr = None
-    if res.reference_model is not None:
-        err = [(r.force - res.reference_model.predict(r, m))[m] for r, m in zip(validate, keep)]
-        vr = _nrmse(float(np.mean(np.concatenate(err) ** 2)), vstd)
-    per = {e: vn((res.singles[e],)) for e in damper_causes if res.singles.get(e) is not None}
-    # Each cause switched off in the extended model (no refit): a cause whose removal
-    # predicts these records better does not transfer to them.
-    without = {}
-    for e in damper_causes:
-        if e in res.final.effects and e not in engine.SENSOR_EFFECTS:
-            off = copy.copy(res.final)
-            off.effects = tuple(x for x in res.final.effects if x != e)
-            without[e] = vn((off,))
-    worse = [e for e, n in without.items() if n < (1.0 - TRANSFER_LOSS) * ve]
-    out = {'records': [r.name for r in validate], 'baseline_nrmse': vb, 'extended_nrmse': ve,
-           'gain': 1.0 - ve / vb, 'single_effect_nrmse': per, 'domain': lines,
-           'reference_nrmse': vr, 'without_effect_nrmse': without,
-           'not_transferring': worse,
-           'excluded_share': excluded / max(used + excluded, 1),
-           'note': 'physical models without the force-channel delay of the fitted records; '
-                   'samples outside the fitted domain left out'}
-    return out
+def validation(val):
+    """Render a ``transfer.Validation`` (figures on records the fit never saw)."""
+    return {'records': list(val.records), 'baseline_nrmse': val.baseline_nrmse,
+            'extended_nrmse': val.extended_nrmse, 'gain': val.gain,
+            'model': val.model, 'causes': list(val.causes), 'dropped': list(val.dropped),
+            'choices': list(val.choices),
+            'selected_nrmse': val.selected_nrmse, 'selected_gain': val.selected_gain,
+            'candidates_nrmse': dict(val.candidates), 'reference_nrmse': val.reference_nrmse,
+            'domain': list(val.domain), 'excluded_share': val.excluded_share,
+            'note': ('extended: the model handed on for these records, chosen among the '
+                     'baseline, each cause alone and the selected model without one cause, '
+                     'scored with cross-fitting (chosen on one half of each record, scored on '
+                     'the other); physical models without the force-channel delay of the '
+                     'fitted records; samples outside the fitted domain left out')}
 
 
 def _predictions(res, records, delay=True):
@@ -519,17 +495,23 @@ def markdown(report, figures):
     if 'validation' in report:
         v = report['validation']
         lines += ['', '## Validation records', '',
-                  f'Baseline NRMSE {v["baseline_nrmse"]:.4f}, extended {v["extended_nrmse"]:.4f}'
-                  f', gain {v["gain"]:.1%} on {len(v["records"])} record(s) never used in the '
-                  f'fit ({100 * v["excluded_share"]:.1f} % of their samples outside the fitted '
-                  'domain left out).' + (
-                      f' Learned reference {v["reference_nrmse"]:.4f}.'
-                      if v.get('reference_nrmse') is not None else '')]
+                  f'{len(v["records"])} record(s) never used in the fit '
+                  f'({100 * v["excluded_share"]:.1f} % of their samples outside the fitted '
+                  'domain left out). NRMSE: baseline '
+                  f'{v["baseline_nrmse"]:.4f}; extended as selected on the fit records '
+                  f'{v["selected_nrmse"]:.4f} (gain {v["selected_gain"]:.1%}); model handed '
+                  f'on for these records `{v["model"]}` {v["extended_nrmse"]:.4f} (gain '
+                  f'{v["gain"]:.1%}, chosen on one half of each record and scored on the '
+                  f'other; the halves chose `{v["choices"][0]}` and `{v["choices"][1]}`).'
+                  + (f' Learned reference {v["reference_nrmse"]:.4f}.'
+                     if v.get('reference_nrmse') is not None else '')]
         lines += [f'- {line}' for line in v['domain']]
-        for e in v.get('not_transferring', ()):
-            lines.append(f'- `{e}` does not transfer to these records: the extended model '
-                         f'without it predicts them at {v["without_effect_nrmse"][e]:.4f} '
-                         f'(with it {v["extended_nrmse"]:.4f})')
+        if v['dropped']:
+            lines.append('- ' + ', '.join(f'`{e}`' for e in v['dropped'])
+                         + ' named on the fit records but not transferring to these: left '
+                         'out of model.json')
+        lines.append('- every candidate: ' + ', '.join(
+            f'{k} {n:.4f}' for k, n in v['candidates_nrmse'].items()))
     if report.get('input_warnings'):
         lines += ['', '## Input warnings', '']
         lines += [f'- {w}' for w in report['input_warnings']]
