@@ -37,9 +37,12 @@ noisy inputs is the inputs' doing).
 
 With ``--stages`` it counts, per stage of the selection (``diagnose.STAGES``), the records
 whose extended model or causes that stage changed: what each check pays for on the benchmark.
+``--without CHECK`` leaves a check out and ``--only K,...`` runs only those out-of-model cases:
+a check that returns its state unchanged cannot matter, so rerunning the records it changed
+without it (``--stages --json`` lists them) is its whole ablation.
 
 Usage: ``python benchmarks/bench_diagnose.py [--cases 300] [--duration 12] [--jobs 2]
-[--outside 0] [--stages]``.
+[--outside 0] [--stages] [--without CHECK,...] [--only K,...] [--json FILE]``.
 """
 
 import argparse
@@ -188,10 +191,23 @@ def _causes(res):
     return res.physical_causes, tuple(c for c in res.causes if c not in res.physical_causes)
 
 
+def without_stages(names):
+    """Drop the named checks (``diagnose.CHECKS``, names without ``_stage_``) from the run."""
+    names = set(names)
+    known = {st.__name__.removeprefix('_stage_') for st in diagnose.CHECKS}
+    if names - known:
+        raise SystemExit(f'--without: unknown check(s) {sorted(names - known)}; '
+                         f'checks: {sorted(known)}')
+    diagnose.STAGES = tuple(st for st in diagnose.STAGES
+                            if st.__name__.removeprefix('_stage_') not in names)
+
+
 def run_case(job):
     """Diagnose one case; return a dict of outcomes (runs in a worker process)."""
-    family, k, effs, seed, duration, clean_inputs, stages = job  # 'outside': out-of-model
+    family, k, effs, seed, duration, clean_inputs, stages, without = job
     diagnose.JOBS = 1  # the cases run in parallel processes already
+    if without:
+        without_stages(without)
     if stages:
         watch_stages()
     _STAGE_LOG.clear()
@@ -497,17 +513,27 @@ def main(argv=None):
     ap.add_argument('--outside', type=int, default=0,
                     help='cases of the outside family: an effect the catalogue lacks '
                          '(truth.rig.OUTSIDE), every other pair with a catalogue effect')
+    ap.add_argument('--without', default='',
+                    help='comma-separated checks of diagnose.CHECKS to leave out (ablation)')
+    ap.add_argument('--only', default='',
+                    help='comma-separated out-of-model case numbers to run (no other family)')
     ap.add_argument('--stages', action='store_true',
                     help='log, per record, which stages of the selection changed the model or '
                          'the causes, and print how often each did')
     args = ap.parse_args(argv)
     ci, st = args.clean_inputs, args.stages
-    jobs = [('out-of-model', k, e, args.seed * 100003 + k, args.duration, ci, st)
+    wo = tuple(w for w in args.without.split(',') if w)
+    if wo:
+        without_stages(wo)  # checked here, applied in every worker
+    jobs = [('out-of-model', k, e, args.seed * 100003 + k, args.duration, ci, st, wo)
             for k, e in enumerate(case_list(args.cases, args.seed, truth_rig.EFFECTS))]
-    jobs += [('in-model', k, e, args.seed * 100003 + 50000 + k, args.duration, False, st)
+    jobs += [('in-model', k, e, args.seed * 100003 + 50000 + k, args.duration, False, st, wo)
              for k, e in enumerate(case_list(args.in_model, args.seed + 1, engine.EFFECTS))]
-    jobs += [('outside', k, e, args.seed * 100003 + 70000 + k, args.duration, False, st)
+    jobs += [('outside', k, e, args.seed * 100003 + 70000 + k, args.duration, False, st, wo)
              for k, e in enumerate(outside_list(args.outside, args.seed + 2))]
+    if args.only:
+        only = {int(k) for k in args.only.split(',') if k}
+        jobs = [j for j in jobs if j[0] == 'out-of-model' and j[1] in only]
     t0 = time.time()
     results = []
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:

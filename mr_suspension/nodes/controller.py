@@ -61,23 +61,16 @@ class ControllerNode(Node):
         self.config = common.declare_corner(self, d)
         self.lockstep = common.declare(self, d, 'lockstep', 'Lock-step: run once per sensor '
                                        'sample after the coil current of the step before')
-        fs = common.declare_fail_safe(self, d, NODE, watchdog_scope='Real time, trigger sample')
+        self.fs = fs = common.declare_fail_safe(self, d, NODE,
+                                                watchdog_scope='Real time, trigger sample')
         self.trigger = common.declare(self, d, 'trigger', 'Run the law per complete sensor '
                                       'sample ("sample") or on a wall timer ("timer")')
         if self.trigger not in ('sample', 'timer'):
             raise ValueError(f'controller: trigger must be sample or timer, got {self.trigger!r}')
-        self.gravity = fs.gravity
-        self.sensor_timeout = fs.sensor_timeout
-        self.fallback_current = fs.fallback_current
-        self.frozen_timeout = fs.frozen_timeout
-        self.frozen_requires_motion = fs.frozen_requires_motion
-        self.watchdog_period = fs.watchdog_period
-        recovery_time, diagnostic_period = fs.recovery_time, fs.diagnostic_period
-        coil_feedback, recorders = fs.coil_feedback, fs.recorders
         self.stats = common.Stats(fs.stats_file)
         self.stepper = ControllerStepper(self.config).warm_up()
-        self.use_coil = coil_feedback == 'on' or \
-            (coil_feedback == 'auto' and self.stepper.uses_field)
+        self.use_coil = fs.coil_feedback == 'on' or \
+            (fs.coil_feedback == 'auto' and self.stepper.uses_field)
         self.finished = threading.Event()
         self.clock = time.monotonic  # of the fault logic (a test may run it on virtual time)
         self.pub_cmd = self.create_publisher(Float64, c.CURRENT_COMMAND,
@@ -96,8 +89,8 @@ class ControllerNode(Node):
                                      common.qos(c.COIL_CURRENT, self.lockstep), raw=True)
         self.tpl_cmd = cdr.Template(Float64(), ('data',), stamped=False)
         # Newest value, arrival time and the real-time checks per sensor.
-        self.watch = SensorWatch(MOTION, self.sensor_timeout, self.frozen_timeout,
-                                 self.frozen_requires_motion)
+        self.watch = SensorWatch(MOTION, self.fs.sensor_timeout, self.fs.frozen_timeout,
+                                 self.fs.frozen_requires_motion)
         self.latest = self.watch.latest
         self.arrival = self.watch.arrival
         self.n_sensor = self.watch.n_sensor
@@ -115,8 +108,8 @@ class ControllerNode(Node):
         self.n_publish_failed = 0  # refused by the middleware (common.publish)
         self.timer = None
         self.gate = None
-        self.health = health.Health(self, f'fallback current {self.fallback_current:g} A '
-                                    'commanded', recovery_time, diagnostic_period,
+        self.health = health.Health(self, f'fallback current {self.fs.fallback_current:g} A '
+                                    'commanded', fs.recovery_time, fs.diagnostic_period,
                                     self.lockstep, self._diagnostic_values)
         names = ('rate', 'lockstep', 'vehicle', 'damper', 'driver', 'gravity')
         mine = {n: self.get_parameter(n).value for n in names}
@@ -126,11 +119,12 @@ class ControllerNode(Node):
             'actuator': [('rate', True), ('lockstep', True)] + model})
         steady = health.steady_clock()
         if self.lockstep:
-            self.gate = common.MatchGate(self, [(self.pub_cmd, 1 + recorders)], self._run_samples)
-            self.create_timer(diagnostic_period, lambda: self.health.tick(), clock=steady)
+            self.gate = common.MatchGate(self, [(self.pub_cmd, 1 + fs.recorders)],
+                                         self._run_samples)
+            self.create_timer(fs.diagnostic_period, lambda: self.health.tick(), clock=steady)
         else:
             self.health.set('stale', WARN, 'no sensor data yet')
-            period = self.config.dt if self.trigger == 'timer' else self.watchdog_period
+            period = self.config.dt if self.trigger == 'timer' else self.fs.watchdog_period
             self.timer = self.create_timer(period, self._on_tick, clock=steady)
 
     @property
@@ -172,11 +166,11 @@ class ControllerNode(Node):
 
     def _on_imu_s(self, raw):
         stamp, acc = cdr.imu_acc_z(raw)
-        self._store(c.IMU_BODY, stamp, acc - self.gravity)
+        self._store(c.IMU_BODY, stamp, acc - self.fs.gravity)
 
     def _on_imu_u(self, raw):
         stamp, acc = cdr.imu_acc_z(raw)
-        self._store(c.IMU_WHEEL, stamp, acc - self.gravity)
+        self._store(c.IMU_WHEEL, stamp, acc - self.fs.gravity)
 
     def _on_stroke(self, raw):
         stamp, position, _, _ = cdr.joint_state(raw)
@@ -198,14 +192,14 @@ class ControllerNode(Node):
         if not common.finite(acc_s, acc_u, x):
             if 'value' not in self.health.faults:
                 self.health.set('value', WARN, 'non-finite sensor value', now)
-            i_cmd = self.fallback_current
+            i_cmd = self.fs.fallback_current
         else:
             if 'value' in self.health.faults:
                 self.health.clear('value', now)
             self.last_law = now
             i_cmd = self.stepper.step(acc_s, acc_u, x, field)
             if self.health.fallback:
-                i_cmd = self.fallback_current
+                i_cmd = self.fs.fallback_current
         self._publish(i_cmd, now)
 
     def _publish(self, i_cmd, now):
@@ -229,9 +223,9 @@ class ControllerNode(Node):
     def _stale(self, now):
         reason = self.watch.stale(now)
         if reason is None and self.trigger == 'sample' \
-                and now - self.last_law > self.sensor_timeout:
+                and now - self.last_law > self.fs.sensor_timeout:
             return 'no complete sensor sample (same stamp on imu/body, imu/wheel and stroke) ' \
-                f'for {self.sensor_timeout:g} s; use trigger: timer for unsynchronised sensors'
+                f'for {self.fs.sensor_timeout:g} s; use trigger: timer for unsynchronised sensors'
         return reason
 
     def _check(self, now):
@@ -245,7 +239,7 @@ class ControllerNode(Node):
 
     def _diagnostic_values(self):
         ages = self.watch.ages_ms(self.clock())
-        return (('fallback_current_A', f'{self.fallback_current:g}'),
+        return (('fallback_current_A', f'{self.fs.fallback_current:g}'),
                 ('commands_in_fallback', self.n_fallback),
                 ('samples_dropped', self.n_dropped)) + tuple(
             (f'age_ms {t}', ages[t]) for t in self.latest)
@@ -257,8 +251,8 @@ class ControllerNode(Node):
         if self.trigger == 'timer' and not self.health.has('stale'):
             self._command(self.latest[c.IMU_BODY], self.latest[c.IMU_WHEEL],
                           self.latest[c.STROKE], self.coil_latest)
-        elif self.health.fallback and now - self.last_cmd >= 0.5 * self.watchdog_period:
-            self._publish(self.fallback_current, now)  # no samples come: keep commanding
+        elif self.health.fallback and now - self.last_cmd >= 0.5 * self.fs.watchdog_period:
+            self._publish(self.fs.fallback_current, now)  # no samples come: keep commanding
 
     def _run_samples(self):
         if self.gate is not None and not self.gate.check():

@@ -87,20 +87,13 @@ class ModalControllerNode(Node):
         self.config = common.declare_full_car(self, d, modal=ModalParams(**gains))
         self.lockstep = common.declare(self, d, 'lockstep', 'Lock-step: run once per sample '
                                        'after the coil currents of the step before')
-        fs = common.declare_fail_safe(
+        self.fs = fs = common.declare_fail_safe(
             self, d, NODE, timeout_scope=' (of a corner: that corner; the body IMU: all corners)',
             coil_text="Subscribe to each corner's coil_current")
-        self.gravity = fs.gravity
-        self.sensor_timeout = fs.sensor_timeout
-        self.fallback_current = fs.fallback_current
-        frozen_timeout, frozen_requires_motion = fs.frozen_timeout, fs.frozen_requires_motion
-        self.watchdog_period = fs.watchdog_period
-        recovery_time, diagnostic_period = fs.recovery_time, fs.diagnostic_period
-        coil_feedback, recorders = fs.coil_feedback, fs.recorders
         self.stats = common.Stats(fs.stats_file)
         self.stepper = ModalControllerStepper(self.config).warm_up()
-        self.use_coil = coil_feedback == 'on' or \
-            (coil_feedback == 'auto' and self.stepper.uses_field)
+        self.use_coil = fs.coil_feedback == 'on' or \
+            (fs.coil_feedback == 'auto' and self.stepper.uses_field)
         self.corners = c.CORNERS
         n = len(self.corners)
         self.finished = threading.Event()
@@ -126,10 +119,10 @@ class ModalControllerNode(Node):
                                          functools.partial(self._on_coil, i),
                                          common.qos(c.COIL_CURRENT, self.lockstep), raw=True)
         self.tpl_cmd = cdr.Template(Float64(), ('data',), stamped=False)
-        self.watch = [SensorWatch(MOTION, self.sensor_timeout, frozen_timeout,
-                                  frozen_requires_motion) for _ in range(n)]
-        self.body_watch = SensorWatch({c.BODY_IMU: BODY_MOTION}, self.sensor_timeout,
-                                      frozen_timeout, frozen_requires_motion)
+        self.watch = [SensorWatch(MOTION, fs.sensor_timeout, fs.frozen_timeout,
+                                  fs.frozen_requires_motion) for _ in range(n)]
+        self.body_watch = SensorWatch({c.BODY_IMU: BODY_MOTION}, self.fs.sensor_timeout,
+                                      fs.frozen_timeout, fs.frozen_requires_motion)
         self.coil = [deque() for _ in range(n)]  # lock-step: coil current k - 1, per corner
         self.coil_latest = [math.nan] * n
         self.held = [(0.0, 0.0, 0.0)] * n  # newest finite sensor values per corner
@@ -144,8 +137,8 @@ class ModalControllerNode(Node):
         self.last_law = [-math.inf] * n
         self.last_cmd = [-math.inf] * n
         self.gate = None
-        action = f'fallback current {self.fallback_current:g} A commanded'
-        self.health = [health.Health(self, action, recovery_time, diagnostic_period,
+        action = f'fallback current {self.fs.fallback_current:g} A commanded'
+        self.health = [health.Health(self, action, fs.recovery_time, fs.diagnostic_period,
                                      self.lockstep, functools.partial(self._diagnostic_values,
                                                                       i), corner=corner)
                        for i, corner in enumerate(self.corners)]
@@ -159,13 +152,13 @@ class ModalControllerNode(Node):
         self.peers = health.PeerCheck(self, _Router(self.health, self.corners), mine, rules)
         steady = health.steady_clock()
         if self.lockstep:
-            self.gate = common.MatchGate(self, [(p, 1 + recorders) for p in self.pub_cmd],
+            self.gate = common.MatchGate(self, [(p, 1 + fs.recorders) for p in self.pub_cmd],
                                          self._run_samples)
-            self.create_timer(diagnostic_period, self._tick_health, clock=steady)
+            self.create_timer(fs.diagnostic_period, self._tick_health, clock=steady)
         else:
             for h in self.health:
                 h.set('stale', WARN, 'no sensor data yet')
-            self.create_timer(self.watchdog_period, self._on_tick, clock=steady)
+            self.create_timer(self.fs.watchdog_period, self._on_tick, clock=steady)
 
     @property
     def fallback(self):
@@ -194,13 +187,13 @@ class ModalControllerNode(Node):
 
     def _on_body(self, raw):
         stamp, w_roll, w_pitch, acc = cdr.imu_body(raw)
-        a_z = acc - self.gravity
+        a_z = acc - self.fs.gravity
         self._store(BODY, self.body_watch, c.BODY_IMU, stamp, (a_z, w_pitch, w_roll), a_z)
 
     def _on_imu(self, i, topic, raw):
         stamp, acc = cdr.imu_acc_z(raw)
-        self._store((i, topic), self.watch[i], topic, stamp, acc - self.gravity,
-                    acc - self.gravity)
+        self._store((i, topic), self.watch[i], topic, stamp, acc - self.fs.gravity,
+                    acc - self.fs.gravity)
 
     def _on_stroke(self, i, topic, raw):
         stamp, position, _, _ = cdr.joint_state(raw)
@@ -271,7 +264,7 @@ class ModalControllerNode(Node):
                 h.set('value', WARN, 'non-finite sensor value', now)
             fresh.append(good)
             corners.append(self.held[i] + (coil[i],))
-        cmds = [self.fallback_current] * len(corners)
+        cmds = [self.fs.fallback_current] * len(corners)
         if body_ok:
             cmds = self.stepper.step(body, corners)
             for i, good in enumerate(fresh):
@@ -279,7 +272,7 @@ class ModalControllerNode(Node):
                     self.last_law[i] = now
         for i, h in enumerate(self.health):
             ok = body_ok and fresh[i] and not h.fallback
-            self._publish(i, cmds[i] if ok else self.fallback_current, now)
+            self._publish(i, cmds[i] if ok else self.fs.fallback_current, now)
 
     def _publish(self, i, i_cmd, now):
         if self.health[i].fallback:
@@ -314,9 +307,9 @@ class ModalControllerNode(Node):
 
     def _stale(self, i, now):
         reason = self.watch[i].stale(now)
-        if reason is None and now - self.last_law[i] > self.sensor_timeout:
+        if reason is None and now - self.last_law[i] > self.fs.sensor_timeout:
             reason = "no complete sensor sample (same stamp on body/imu and the corner's " \
-                f'imu/body, imu/wheel and stroke) for {self.sensor_timeout:g} s'
+                f'imu/body, imu/wheel and stroke) for {self.fs.sensor_timeout:g} s'
         return reason
 
     def _check(self, now):
@@ -346,7 +339,7 @@ class ModalControllerNode(Node):
         now = self.clock()
         ages = self.watch[i].ages_ms(now)
         ages.update(self.body_watch.ages_ms(now))
-        return (('fallback_current_A', f'{self.fallback_current:g}'),
+        return (('fallback_current_A', f'{self.fs.fallback_current:g}'),
                 ('commands_in_fallback', self.n_fallback[i]),
                 ('samples_dropped', self.watch[i].n_dropped + self.body_watch.n_dropped)) \
             + tuple((f'age_ms {t}', a) for t, a in ages.items())
@@ -360,8 +353,8 @@ class ModalControllerNode(Node):
         self._check(now)
         for i, h in enumerate(self.health):
             h.tick(now)
-            if h.fallback and now - self.last_cmd[i] >= 0.5 * self.watchdog_period:
-                self._publish(i, self.fallback_current, now)  # no samples come: keep commanding
+            if h.fallback and now - self.last_cmd[i] >= 0.5 * self.fs.watchdog_period:
+                self._publish(i, self.fs.fallback_current, now)  # no samples come: keep commanding
 
     def drain(self, executor):
         """On shutdown, handle the messages still queued (clean statistics)."""

@@ -13,12 +13,13 @@ from pathlib import Path
 import numpy as np
 
 from mr_suspension.truth import rig, sensors
+from mr_suspension.truth.redraw import Redrawable
 
 COLUMN_ORDER = ('time', 'displacement', 'velocity', 'force', 'current_command', 'current')
 
 
 @dataclass(frozen=True, eq=False)
-class Case:
+class Case(Redrawable):
     """One synthetic rig record with its truth.
 
     ``columns`` (package column names, SI, rows as written), ``truth`` (``rig.RigTruth``),
@@ -58,19 +59,6 @@ class Case:
         np.savetxt(path, table, delimiter=',', header=','.join(names), comments='',
                    fmt='%.10g')
         return path
-
-    def unseen(self, record=None, duration=None, kind=None):
-        """Return the same damper on the same rig under another programme and noise.
-
-        ``record`` defaults to this record + 1.
-        """
-        args = dict(self.args)
-        args['record'] = self.record + 1 if record is None else int(record)
-        if duration is not None:
-            args['duration'] = duration
-        if kind is not None:
-            args['kind'] = kind
-        return make_case(**args)
 
 
 def _rng(seed, *tags):
@@ -143,3 +131,6 @@ def transfer_floor(train, unseen):
     if not (e_t.size and e_u.size and s_u > 0):
         return float('nan')
     return float(np.sqrt(np.mean((e_u - np.mean(e_t)) ** 2)) / s_u)
+
+
+Case.make = make_case  # what ``unseen`` draws again

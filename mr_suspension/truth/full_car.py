@@ -43,7 +43,7 @@ pitch and roll rates (gyro about y and x). Sensors: per corner those of
 with white and AR(1) noise, gyros with small white noise).
 """
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 import math
 
 from numba import njit
@@ -51,6 +51,7 @@ import numpy as np
 
 import mr_suspension.core.car_road as cr
 from mr_suspension.truth import vehicle as tv
+from mr_suspension.truth.redraw import Redrawable
 from mr_suspension.truth.vehicle import (P_CT, P_DEAD, P_FC, P_FFALL, P_FRISE, P_G, P_IMAX,
                                          P_KT, P_MNOM, P_MU, P_TFALL, P_TRISE, P_XFALL,
                                          P_XPRE, P_XRISE)
@@ -488,7 +489,7 @@ def _rms(x):
 
 
 @dataclass(frozen=True, eq=False)
-class FullCarCase:
+class FullCarCase(Redrawable):
     """One synthetic full-car record with its truth.
 
     ``corner``: the hidden corner (None: nothing hidden). ``columns``: per corner name the
@@ -522,18 +523,6 @@ class FullCarCase:
     def effects(self):
         """Effects of the hidden corner."""
         return self.truth.effects
-
-    def unseen(self, record=None, duration=None):
-        """Return the same car and sensors on another road, command and noise (record + 1)."""
-        args = dict(self.args)
-        args['record'] = self.record + 1 if record is None else int(record)
-        if duration is not None:
-            args['duration'] = duration
-        return make_full_car_case(**args)
-
-    def truth_dict(self):
-        """Truth parameters as a plain dict."""
-        return asdict(self.truth)
 
 
 def _check_case_args(seed, record, corner, effects, sensor_faults, duration, rate, command,
@@ -659,3 +648,6 @@ def make_full_car_case(seed, effects=(), corner=None, sensor_faults=(), duration
 def _corner_clean(clean, i):
     return {k: clean[k][i] for k in ('body_acc', 'wheel_acc', 'stroke', 'current_command',
                                      'coil_current')}
+
+
+FullCarCase.make = make_full_car_case  # what ``unseen`` draws again

@@ -39,7 +39,7 @@ coloured noise; ``acc_bias``/``acc_scale`` act on the body IMU; stroke with whit
 optional measured coil current (+ white noise).
 """
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 import math
 from pathlib import Path
 
@@ -48,6 +48,7 @@ import numpy as np
 import yaml
 
 import mr_suspension.core.road as rd
+from mr_suspension.truth.redraw import Redrawable
 
 EFFECTS = ('strut_friction', 'bump_stop', 'top_mount', 'spring_nonlinearity', 'sprung_mass',
            'current_delay', 'current_lag', 'current_lag_asymmetric', 'current_saturation',
@@ -652,7 +653,7 @@ def _command(rng, n, dt, kind, i_max):
 
 
 @dataclass(frozen=True, eq=False)
-class VehicleCase:
+class VehicleCase(Redrawable):
     """One synthetic vehicle record with its truth.
 
     ``columns`` (``time``, ``body_acc``, ``wheel_acc`` [m/s^2, specific force, z up],
@@ -678,14 +679,6 @@ class VehicleCase:
         """Hidden corner and current effects of the truth."""
         return self.truth.effects
 
-    def unseen(self, record=None, duration=None):
-        """Return the same car and sensors on another road, command and noise (record + 1)."""
-        args = dict(self.args)
-        args['record'] = self.record + 1 if record is None else int(record)
-        if duration is not None:
-            args['duration'] = duration
-        return make_vehicle_case(**args)
-
     def write_csv(self, path):
         """Write the columns as CSV with a header; return the path."""
         path = Path(path)
@@ -693,10 +686,6 @@ class VehicleCase:
         np.savetxt(path, np.column_stack([self.columns[c] for c in names]), delimiter=',',
                    header=','.join(names), comments='', fmt='%.10g')
         return path
-
-    def truth_dict(self):
-        """Truth parameters as a plain dict."""
-        return asdict(self.truth)
 
 
 def _rng(seed, *tags):
@@ -784,3 +773,6 @@ def make_vehicle_case(seed, effects=(), sensor_faults=(), duration=60.0, rate=10
     return VehicleCase(seed=int(seed), record=int(record), columns=columns, truth=tr,
                        sensor=spec, noise_rms=noise_rms, contributions=contrib, clean=clean,
                        args=args)
+
+
+VehicleCase.make = make_vehicle_case  # what ``unseen`` draws again
