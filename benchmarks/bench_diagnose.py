@@ -354,7 +354,7 @@ def summarise(family, results, strict=False):
           f'{DRIVER_PRESENT:.2f}x the noise)')
     if not strict:
         old = [r for r in _scored(raw, strict, 1.0) if not r['effects']]
-        print(f'  same, the driver lag present only from 1x the noise (stops 19-22): '
+        print(f'  same, the driver lag present only from 1x the noise (a stricter count): '
               f'{sum(bool(r["causes"]) for r in old)}/{len(old)}')
     if dl[1]:
         print(f'channel delay alone named channel_delay (no physics): {dl[0]}/{dl[1]}')
