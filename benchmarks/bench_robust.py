@@ -206,6 +206,8 @@ def main(argv=None):
                     help='record length [s] (default: 12 rig, 60 car)')
     ap.add_argument('--jobs', type=int, default=1, help='records diagnosed at once')
     ap.add_argument('--variants', default=','.join(VARIANTS))
+    ap.add_argument('--json', default=None,
+                    help='write the outcomes of every variant and record to this JSON file')
     ap.add_argument('--variant', default=None, help=argparse.SUPPRESS)
     ap.add_argument('--out', default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -229,6 +231,8 @@ def main(argv=None):
             subprocess.run(cmd, check=True, env=_env(v, tmp))
             results[v] = json.loads(out.read_text())
             print(f'{v:10s} {len(results[v])} records in {time.time() - t0:.0f} s', flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1))
     base = results['baseline']
     total = 0
     for v in variants:

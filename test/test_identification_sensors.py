@@ -118,6 +118,30 @@ def test_nan_and_frozen_runs_are_masked():
     assert np.all(np.isfinite(rec.force))
 
 
+def test_a_hold_is_a_hold_under_round_off():
+    """A frozen run scaled by 1 + 1e-9 u per sample (round-off of a unit conversion) is held.
+
+    The finding, its mask and the velocity bridged over it are those of the exact hold; a
+    24-bit converter's step (6e-8 of full scale) is never taken for a repeat.
+    """
+    cols = _cols(np.arange(8000) * 1e-3)
+    f = cols['force'].copy()
+    f[6000:6200] = f[5999]
+    cols['force'] = f
+    exact = _build(cols)
+    rng = np.random.default_rng(5)
+    blurred = {k: (v if k == 'time' else v * (1.0 + 1e-9 * rng.uniform(-1, 1, v.size)))
+               for k, v in cols.items()}
+    rec = _build(blurred)
+    assert _names(rec) == _names(exact) == ['dropout']
+    np.testing.assert_array_equal(rec.mask, exact.mask)
+    span = 2.0 ** 24
+    steps = (np.arange(1000) + 2.0 ** 23) / span   # consecutive codes near full scale
+    assert not sensors.repeats(steps).any()
+    assert sensors.repeats(np.array([1.0, 1.0, np.nan, np.nan, 0.0, 0.0])).tolist() == \
+        [True, False, False, False, True]
+
+
 def test_velocity_skewed_by_half_a_millisecond_is_replaced():
     t = np.arange(10000) * 1e-3
     cols = _cols(t)

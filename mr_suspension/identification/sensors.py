@@ -208,12 +208,25 @@ def missing_rows(base):
         samples=miss, runs=start.size, longest=int(length[j]))
 
 
+REPEAT_TOL = 1e-8  # relative to the values: far below any converter's resolution
+
+
+def repeats(x):
+    """``r[k]``: ``x[k + 1]`` repeats ``x[k]`` (equal to within ``REPEAT_TOL`` of their size).
+
+    A held sample repeats its value; a difference far below any sensor's resolution (round-off
+    of a unit conversion or a scale) must not decide whether it does. NaN repeats nothing.
+    """
+    x = np.asarray(x, dtype=float)
+    a, b = x[1:], x[:-1]
+    with np.errstate(invalid='ignore'):
+        return (a == b) | (np.abs(a - b) <= REPEAT_TOL * np.maximum(np.abs(a), np.abs(b)))
+
+
 def _resolution(x):
-    """Smallest step of ``x`` above float noise (its quantisation, or a tiny number)."""
+    """Smallest step of ``x`` that is not a repeat (its quantisation, or a tiny number)."""
     d = np.abs(np.diff(x))
-    ok = np.isfinite(d)
-    floor = 1e-9 * float(np.max(np.abs(x[np.isfinite(x)]), initial=0.0))
-    d = d[ok & (d > floor)]
+    d = d[np.isfinite(d) & ~repeats(x)]
     return float(d.min()) if d.size else 0.0
 
 
@@ -230,7 +243,7 @@ def _held_runs(x, consistent=None, suspects=()):
     are judged by, and hide themselves).
     """
     n = x.size
-    eq = x[1:] == x[:-1]
+    eq = repeats(x)
     if not eq.any():
         return []
     own = eq & ~np.isin(x[1:], suspects) if len(suspects) else eq
@@ -381,7 +394,7 @@ def frame_holds(channels):
     """
     if len(channels) < 2:
         return None, None
-    eqs = [np.r_[False, y[1:] == y[:-1]] for y in map(np.asarray, channels.values())]
+    eqs = [np.r_[False, repeats(y)] for y in map(np.asarray, channels.values())]
     held = np.logical_and.reduce(eqs)
     nh = int(held.sum())
     if nh == 0:
