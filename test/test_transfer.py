@@ -57,7 +57,7 @@ def test_validation_figures_agree_with_the_model_handed_on(loop_fit):
     case, res = loop_fit
     unseen = [truthcases.record(case.unseen().columns, 'unseen')]
     damper = [e for e in res.causes if e in transfer.engine.EFFECTS]
-    val = transfer.validate(res, unseen, damper)
+    val, _ = transfer.validate(res, unseen, damper)
     assert val.candidates[transfer.EXTENDED] == pytest.approx(val.selected_nrmse)
     assert val.candidates[transfer.BASELINE] == pytest.approx(val.baseline_nrmse)
     assert set(val.causes) | set(val.dropped) == set(damper)
@@ -71,3 +71,21 @@ def test_validation_figures_agree_with_the_model_handed_on(loop_fit):
     assert v['gain'] == pytest.approx(1.0 - v['extended_nrmse'] / v['baseline_nrmse'])
     # The loop is real on both programmes of this damper: it is kept and it pays there.
     assert 'hysteresis' in v['causes'] and v['gain'] > 0.0
+
+
+def test_records_wholly_outside_the_domain_get_no_figures(loop_fit, monkeypatch):
+    """Nothing inside the fitted domain: the report says so and keeps the diagnosis."""
+    case, res = loop_fit
+    unseen = [truthcases.record(case.unseen().columns, 'unseen')]
+
+    class Outside:
+        mask = np.zeros(unseen[0].n, dtype=bool)
+
+    monkeypatch.setattr(diagnose, 'domain_lines',
+                        lambda res, r: (Outside, [f'{r.name}: every sample outside']))
+    val, lines = transfer.validate(res, unseen, list(res.physical_causes))
+    assert val is None and lines == ('unseen: every sample outside',)
+    rep, model = report.build(res, [truthcases.record(case.columns)], unseen)
+    assert 'no sample' in rep['validation']['note'] and 'baseline_nrmse' not in rep['validation']
+    assert model['effects'] == [e for e in res.causes if e in transfer.engine.EFFECTS]
+    assert '## Validation records' in report.markdown(rep, [])

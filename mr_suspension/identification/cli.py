@@ -322,7 +322,9 @@ def summary_text(rep):
     if rep['untestable']:
         lines.append('untestable with these data: ' + ', '.join(rep['untestable'])
                      + ' (see mr-suspension doe)')
-    if 'validation' in rep:
+    if 'validation' in rep and 'baseline_nrmse' not in rep['validation']:
+        lines.append(f'validation: {rep["validation"]["note"]}')
+    elif 'validation' in rep:
         v = rep['validation']
         ref_v = (f', learned reference {v["reference_nrmse"]:.4f}'
                  if v.get('reference_nrmse') is not None else '')

@@ -198,9 +198,11 @@ def build(res, records, validate=(), elapsed=None):
         extra['hedge'] = model_io.hedge_dict(res.hedge.params(), res.hedge.dynamics(),
                                              res.hedge.effects)
     if validate:
-        val = transfer.validate(res, validate, damper_causes)
-        report['validation'] = validation(val)
-        if val.model != transfer.EXTENDED:
+        val, lines = transfer.validate(res, validate, damper_causes)
+        report['validation'] = validation(val) if val is not None else {
+            'records': [r.name for r in validate], 'domain': list(lines),
+            'note': 'no sample of these records lies inside the fitted domain: no figures'}
+        if val is not None and val.model != transfer.EXTENDED:
             # The model handed on is the one that transfers to the validation programme.
             handed = val.fits[0]
             ext_params, ext_dyn = handed.params(), handed.dynamics()
@@ -492,7 +494,11 @@ def markdown(report, figures):
         lines += ['', '## Untestable with these data', '',
                   ', '.join(f'`{e}`' for e in report['untestable']) + '.', '',
                   report.get('doe', '')]
-    if 'validation' in report:
+    if 'validation' in report and 'baseline_nrmse' not in report['validation']:
+        v = report['validation']
+        lines += ['', '## Validation records', '', v['note'] + '.']
+        lines += [f'- {line}' for line in v['domain']]
+    elif 'validation' in report:
         v = report['validation']
         lines += ['', '## Validation records', '',
                   f'{len(v["records"])} record(s) never used in the fit '

@@ -124,6 +124,8 @@ def choose(stats, use):
     paired t of the block MSE differences of at least ``T_MIN``.
     """
     ext_s, cnt = stats[EXTENDED]
+    if not np.any(use):
+        return EXTENDED
     cnt = cnt[use]
     ext = ext_s[use] / cnt
     best, best_mse = EXTENDED, float(ext_s[use].sum() / cnt.sum())
@@ -143,18 +145,21 @@ def validate(res, records, damper_causes=()):
     """Score ``res`` on the validation ``records`` and choose the model for such inputs.
 
     Every record is checked against the fitted domain (``diagnose.domain_lines``); its flagged
-    stretches are left out of every figure. Returns a ``Validation``.
+    stretches are left out of every figure. Returns ``(Validation or None, domain lines)``:
+    None when no sample lies inside the fitted domain (nothing to score).
     """
     keep, lines, excluded = [], [], 0
     for r in records:
         chk, found = diagnose.domain_lines(res, r)
         m = np.asarray(r.mask, dtype=bool)
-        if chk is not None and chk.mask.any():
+        if chk is not None:
             excluded += int(np.count_nonzero(m & ~chk.mask))
             m = m & chk.mask
         keep.append(m)
         lines += found
     used = sum(int(np.count_nonzero(m)) for m in keep)
+    if used < 2:
+        return None, tuple(lines)
     std = float(np.std(np.concatenate([r.force[m] for r, m in zip(records, keep)])))
     cands = candidates(res, damper_causes)
     errors = {name: [(r.force - diagnose.predict_force(r, fits, channel=False))[m]
@@ -189,4 +194,4 @@ def validate(res, records, damper_causes=()):
         choices=(on_first, on_second),
         candidates={name: nrmse(errs) for name, errs in errors.items()},
         reference_nrmse=ref, domain=tuple(lines),
-        excluded_share=excluded / max(used + excluded, 1))
+        excluded_share=excluded / max(used + excluded, 1)), tuple(lines)
