@@ -47,6 +47,7 @@ Usage: ``python benchmarks/bench_diagnose.py [--cases 300] [--duration 12] [--jo
 
 import argparse
 from concurrent.futures import ProcessPoolExecutor
+import functools
 import itertools
 import json
 import time
@@ -109,6 +110,7 @@ def watch_stages():
         return
 
     def watched(stage):
+        @functools.wraps(stage)  # keeps the stage's name for --without and the summary
         def run(s, c):
             t = stage(s, c)
             if t is not s:
@@ -496,6 +498,14 @@ def _jsonable(o):
     return str(o)
 
 
+def _case_numbers(text):
+    """``--only``: comma-separated case numbers (a set of int; empty: all cases)."""
+    try:
+        return {int(k) for k in text.split(',') if k.strip()}
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'case numbers separated by commas, got {text!r}')
+
+
 def main(argv=None):
     """Run the benchmark and print the figures."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -515,7 +525,7 @@ def main(argv=None):
                          '(truth.rig.OUTSIDE), every other pair with a catalogue effect')
     ap.add_argument('--without', default='',
                     help='comma-separated checks of diagnose.CHECKS to leave out (ablation)')
-    ap.add_argument('--only', default='',
+    ap.add_argument('--only', default='', type=_case_numbers,
                     help='comma-separated out-of-model case numbers to run (no other family)')
     ap.add_argument('--stages', action='store_true',
                     help='log, per record, which stages of the selection changed the model or '
@@ -532,8 +542,7 @@ def main(argv=None):
     jobs += [('outside', k, e, args.seed * 100003 + 70000 + k, args.duration, False, st, wo)
              for k, e in enumerate(outside_list(args.outside, args.seed + 2))]
     if args.only:
-        only = {int(k) for k in args.only.split(',') if k}
-        jobs = [j for j in jobs if j[0] == 'out-of-model' and j[1] in only]
+        jobs = [j for j in jobs if j[0] == 'out-of-model' and j[1] in args.only]
     t0 = time.time()
     results = []
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:

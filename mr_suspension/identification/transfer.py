@@ -96,15 +96,15 @@ def _blocks(n, parts):
     return np.linspace(0, n, k + 1).astype(int)
 
 
-def block_mse(errors, halves=True):
-    """Per-block MSE of each half (``halves``) of each record: ``(sums, counts, half)``.
+def block_mse(errors):
+    """Per-block sums of squares of each half of each record: ``(sums, counts, half)``.
 
     ``errors`` holds, per record, the error on its kept samples in time order. Returns the
     blocks' sums of squares, their sample counts and which half each block lies in (0, 1).
     """
     sums, counts, half = [], [], []
     for e in errors:
-        cuts = (0, len(e) // 2, len(e)) if halves else (0, len(e))
+        cuts = (0, len(e) // 2, len(e))
         for h, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
             edges = _blocks(b - a, N_BLOCKS)
             for lo, hi in zip(edges[:-1], edges[1:]):
